@@ -1,0 +1,3 @@
+from imud.cli import main
+
+main()

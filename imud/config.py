@@ -1,0 +1,169 @@
+"""The imud config file: one `[zenoh]` table and a list of `[[device]]` tables.
+
+`load_config` is the one way in, used by the daemon, the CLI and the tests. Errors come back as a
+`ConfigError` with one line per problem, naming the device, the field, the bad value and the fix.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Union
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from imud.buses.models import SimBus
+from imud.calibration import CalibrationError, load_calibration
+from imud.chips import CHIPS
+from imud.chips.base import DeviceBase
+from imud.errors import ConfigError
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+_PROTOCOLS = {"tcp", "udp", "tls", "quic", "unixsock-stream", "ws"}
+
+# Discriminated on `chip`; each chip module contributes its own model through the registry.
+if TYPE_CHECKING:
+    DeviceConfig = DeviceBase
+else:
+    DeviceConfig = Annotated[
+        Union[tuple(spec.config_model for spec in CHIPS.values())],  # noqa: UP007
+        Field(discriminator="chip"),
+    ]
+
+
+class ZenohSettings(BaseModel):
+    """Where the daemon's Zenoh session listens and connects. Multicast scouting is always off."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    mode: Literal["peer", "client", "router"] = "peer"
+    listen: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
+    connect: list[str] = Field(default_factory=list)
+    prefix: str = Field("imud", pattern=r"^[A-Za-z0-9_\-]+(/[A-Za-z0-9_\-]+)*$")
+    shared_memory: bool = False
+    options: dict[str, Any] = Field(
+        default_factory=dict,
+        description='any other Zenoh setting, by its config path: {"transport/unicast/qos/enabled" '
+        "= false}; applied after imud's own, so it can override them",
+    )
+
+    @field_validator("listen", "connect")
+    @classmethod
+    def _endpoints(cls, v: list[str]) -> list[str]:
+        for ep in v:
+            if ep.split("/", 1)[0] not in _PROTOCOLS or "/" not in ep:
+                raise ValueError(f"{ep!r} is not a Zenoh endpoint like 'tcp/127.0.0.1:7447'")
+        return v
+
+
+class ImudConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    zenoh: ZenohSettings = Field(default_factory=ZenohSettings)
+    device: list[DeviceConfig] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _unique(self) -> ImudConfig:
+        names: dict[str, int] = {}
+        slots: dict[tuple[str, int], str] = {}
+        for i, d in enumerate(self.device):
+            if d.name in names:
+                raise ValueError(
+                    f"device[{i}]: name {d.name!r} is already used by device[{names[d.name]}]; "
+                    "names must be unique"
+                )
+            names[d.name] = i
+            addr = getattr(d.bus, "address", None)
+            if addr is not None:
+                slot = (d.bus.key, addr)
+                if slot in slots:
+                    raise ValueError(
+                        f"device[{i}] {d.name!r}: bus {d.bus.key} address 0x{addr:02x} is "
+                        f"already taken by {slots[slot]!r}"
+                    )
+                slots[slot] = d.name
+            if d.sim is not None and not isinstance(d.bus, SimBus):
+                raise ValueError(
+                    f'device[{i}] {d.name!r}: a [device.sim] table needs bus.kind = "sim" '
+                    f"(this device is on {d.bus.kind})"
+                )
+            if isinstance(d.bus, SimBus) and d.sim is None:
+                d.sim = _default_sim()
+        return self
+
+
+def _default_sim() -> Any:
+    from imud.sim.settings import SimSettings
+
+    return SimSettings()
+
+
+def _where(loc: tuple[int | str, ...], raw: dict[str, Any]) -> str:
+    """('device', 1, 'mpu6050', 'odr_hz') -> "device[1] 'imu1' (mpu6050): odr_hz"."""
+    parts: list[str] = []
+    rest = list(loc)
+    if len(rest) >= 2 and rest[0] == "device" and isinstance(rest[1], int):
+        i = rest[1]
+        devs = raw.get("device")
+        name = ""
+        if isinstance(devs, list) and i < len(devs) and isinstance(devs[i], dict):
+            name = f" {devs[i].get('name', '?')!r}"
+            chip = devs[i].get("chip")
+            if rest[2:3] == [chip]:
+                rest.pop(2)
+                name += f" ({chip})"
+        parts.append(f"device[{i}]{name}")
+        rest = rest[2:]
+    field = ".".join(str(p) for p in rest if not str(p).startswith("function-"))
+    return ": ".join([*parts, field] if field else parts)
+
+
+def _format(err: Any, raw: dict[str, Any]) -> str:
+    where = _where(tuple(err["loc"]), raw)
+    msg = str(err["msg"]).removeprefix("Value error, ")
+    kind = err["type"]
+    if kind == "missing":
+        return f"{where}: missing; this field is required"
+    if kind == "extra_forbidden":
+        return f"{where}: unknown field; check the spelling (see `imud config-schema`)"
+    if kind == "union_tag_invalid":
+        known = ", ".join(CHIPS)
+        return f"{where}: unknown chip {err['input'].get('chip')!r}; known chips: {known}"
+    if kind == "union_tag_not_found":
+        return f"{where}: missing 'chip' (one of: {', '.join(CHIPS)})"
+    inp = err.get("input")
+    if not isinstance(inp, dict | list):  # a scalar: show the bad value
+        return f"{where} = {inp!r}: {msg}" if where else msg
+    return f"{where}: {msg}" if where else msg
+
+
+def parse_config(raw: dict[str, Any], base_dir: Path | None = None) -> ImudConfig:
+    try:
+        cfg = ImudConfig.model_validate(raw, context={"base_dir": base_dir})
+    except ValidationError as e:
+        raise ConfigError([_format(err, raw) for err in e.errors()]) from None
+    problems = []
+    for i, d in enumerate(cfg.device):
+        if d.calibration is not None:
+            try:
+                load_calibration(d.calibration)
+            except CalibrationError as e:
+                problems.append(f"device[{i}] {d.name!r}: calibration: {e}")
+    if problems:
+        raise ConfigError(problems)
+    return cfg
+
+
+def load_config(path: str | Path) -> ImudConfig:
+    """Read, parse and validate a config file. Raises `ConfigError`."""
+    p = Path(path)
+    try:
+        with open(p, "rb") as f:
+            raw = tomllib.load(f)
+    except FileNotFoundError:
+        raise ConfigError([f"{p}: no such file"]) from None
+    except IsADirectoryError:
+        raise ConfigError([f"{p}: is a directory, expected a TOML file"]) from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError([f"{p}: TOML syntax error: {e}"]) from None
+    return parse_config(raw, p.parent.resolve())

@@ -1,0 +1,231 @@
+"""The daemon: one anyio event loop for supervision, one worker thread per bus for blocking I/O.
+
+Each bus worker owns its devices and runs start/poll/publish for them in turn, so devices on one
+bus are serialised and the event loop never waits on a bus. The event loop answers signals, tells
+systemd how things are, and pets the watchdog only while every bus worker is alive.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import signal
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import anyio
+import zenoh
+
+from imud import __version__
+from imud.buses.models import I2cBus, SimBus
+from imud.calibration import load_calibration
+from imud.chips import CHIPS
+from imud.clock import Clock, MonotonicClock, epoch_offset_ns
+from imud.config import ImudConfig
+from imud.device import DeviceRunner, Publish
+from imud.sdnotify import Notifier
+from imud.zsession import daemon_config
+
+log = logging.getLogger("imud.daemon")
+
+STALL_NS = 10_000_000_000  # a bus worker silent this long is hung: stop petting the watchdog
+
+
+@dataclass
+class BusWorker:
+    key: str
+    runners: list[DeviceRunner]
+    clock: Clock
+    stop: threading.Event = field(default_factory=threading.Event)
+    heartbeat_ns: int = 0
+
+    def run(self) -> None:
+        """Blocking loop: poll whichever device is due next, sleep until the next is."""
+        name = threading.current_thread().name
+        threading.current_thread().name = f"bus {self.key}"
+        try:
+            while not self.stop.is_set():
+                now = self.clock.now_ns()
+                self.heartbeat_ns = now
+                due = min(self.runners, key=lambda r: r.next_due_ns)
+                wait = due.next_due_ns - now
+                if wait > 0:  # wake at least once a second so the heartbeat stays fresh
+                    self.stop.wait(min(wait, 1_000_000_000) / 1e9)
+                    continue
+                try:
+                    due.step()
+                except Exception:  # a bug in one device must not take the bus down
+                    log.exception("%s: unexpected error", due.cfg.name)
+                    due.state, due.last_error = "error", "internal error (see log)"
+                    due.next_due_ns = self.clock.now_ns() + 5_000_000_000
+            for r in self.runners:
+                r.stop()
+        finally:
+            threading.current_thread().name = name
+
+
+def _make_publisher(session: zenoh.Session, key: str) -> tuple[Publish, zenoh.Publisher]:
+    # DROP: a slow or stuck subscriber must never stall acquisition; it sees the gap in seq.
+    pub = session.declare_publisher(
+        key,
+        encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema("imud.batch.v1"),
+        congestion_control=zenoh.CongestionControl.DROP,
+        priority=zenoh.Priority.DATA_HIGH,
+    )
+    return pub.put, pub
+
+
+def build_workers(
+    cfg: ImudConfig, session: zenoh.Session, clock: Clock, offset_ns: int
+) -> tuple[list[BusWorker], list[Any]]:
+    """Open every bus, create drivers (and simulators), one worker per bus. A bus that will not
+    open leaves its devices in `error` with the reason; the others still run."""
+    from imud.buses.i2c import open_smbus
+    from imud.sim.i2c import SimI2CBus
+
+    prefix = cfg.zenoh.prefix
+    groups: dict[str, list[DeviceRunner]] = {}
+    handles: dict[str, Any] = {}
+    keep: list[Any] = []
+    for d in cfg.device:
+        spec = CHIPS[d.chip]
+        key = d.bus.key
+        error: str | None = None
+        sim = None
+        if key not in handles:
+            try:
+                if isinstance(d.bus, SimBus):
+                    handles[key] = SimI2CBus(seed=d.sim.seed if d.sim else 0)
+                elif isinstance(d.bus, I2cBus):
+                    handles[key] = open_smbus(d.bus)
+                else:
+                    raise OSError(f"{d.bus.kind} buses arrive with the chips that use them")
+            except OSError as e:
+                handles[key] = None
+                error = str(e)
+        bus = handles[key]
+        if bus is None and error is None:
+            error = f"bus {key} could not be opened (see the first device on it)"
+        if isinstance(d.bus, SimBus) and bus is not None:
+            sim = spec.make_sim(d, clock)
+            bus.attach(d.bus.address, sim, d.sim.nak_rate if d.sim else 0.0)
+        driver = spec.make_driver(d, bus, clock) if bus is not None else None
+        cal = load_calibration(d.calibration) if d.calibration else None
+        put, pub = _make_publisher(session, f"{prefix}/{d.name}/imu")
+        keep.append(pub)
+        put_truth = None
+        if sim is not None and d.sim is not None and d.sim.truth:
+            put_truth, tpub = _make_publisher(session, f"{prefix}/{d.name}/sim/truth")
+            keep.append(tpub)
+        runner = DeviceRunner(
+            d, driver, cal, put, offset_ns, sim=sim, publish_truth=put_truth, now_ns=clock.now_ns
+        )
+        if error is not None:
+            runner.last_error = error
+        groups.setdefault(key, []).append(runner)
+    return [BusWorker(k, rs, clock) for k, rs in groups.items()], keep
+
+
+class Daemon:
+    def __init__(self, cfg: ImudConfig, clock: Clock | None = None) -> None:
+        self.cfg = cfg
+        self.clock = clock or MonotonicClock()
+        self.started = time.monotonic()
+        self.notifier = Notifier()
+        self.workers: list[BusWorker] = []
+
+    @property
+    def runners(self) -> list[DeviceRunner]:
+        return [r for w in self.workers for r in w.runners]
+
+    def status(self) -> dict[str, Any]:
+        return {
+            "version": __version__,
+            "uptime_s": round(time.monotonic() - self.started, 3),
+            "devices": [r.status() for r in self.runners],
+        }
+
+    def _answer(self, q: zenoh.Query, body: dict[str, Any]) -> None:
+        with q:
+            q.reply(q.key_expr, json.dumps(body), encoding=zenoh.Encoding.APPLICATION_JSON)
+
+    def _device_answer(self, r: DeviceRunner) -> Callable[[zenoh.Query], None]:
+        return lambda q: self._answer(q, r.status())
+
+    async def run(self) -> int:
+        z = self.cfg.zenoh
+        log.info(
+            "imud %s starting: %d device(s), Zenoh %s on %s",
+            __version__,
+            len(self.cfg.device),
+            z.mode,
+            ", ".join(z.listen) or "(no listener)",
+        )
+        session = await anyio.to_thread.run_sync(zenoh.open, daemon_config(z))
+        try:
+            self.workers, keep = build_workers(self.cfg, session, self.clock, epoch_offset_ns())
+            qs = [
+                session.declare_queryable(
+                    f"{z.prefix}/daemon/status", lambda q: self._answer(q, self.status())
+                )
+            ]
+            for r in self.runners:
+                qs.append(
+                    session.declare_queryable(
+                        f"{z.prefix}/{r.cfg.name}/status", self._device_answer(r)
+                    )
+                )
+            async with anyio.create_task_group() as tg:
+                for w in self.workers:
+                    tg.start_soon(anyio.to_thread.run_sync, w.run)
+                tg.start_soon(self._supervise)
+                await self._wait_for_stop()
+                self.notifier.notify("STOPPING=1")
+                for w in self.workers:
+                    w.stop.set()
+                tg.cancel_scope.cancel()  # workers finish their current step and return
+            del keep, qs
+        finally:
+            await anyio.to_thread.run_sync(session.close)
+        log.info("imud stopped")
+        return 0
+
+    async def _wait_for_stop(self) -> None:
+        with anyio.open_signal_receiver(signal.SIGTERM, signal.SIGINT, signal.SIGHUP) as sigs:
+            async for s in sigs:
+                if s == signal.SIGHUP:
+                    log.warning(
+                        "SIGHUP: config reload is not implemented yet; keeping the running config"
+                    )
+                    continue
+                log.info("%s received, stopping", signal.Signals(s).name)
+                return
+
+    def _summary(self) -> str:
+        rs = self.runners
+        running = sum(r.state == "running" for r in rs)
+        lost = sum(r.lost_samples for r in rs)
+        rate = sum(r.measured_rate_hz for r in rs)
+        return f"{running}/{len(rs)} devices running, {rate:.0f} samples/s, {lost} lost"
+
+    async def _supervise(self) -> None:
+        while any(r.state == "starting" for r in self.runners):
+            await anyio.sleep(0.02)
+        self.notifier.notify("READY=1", f"STATUS={self._summary()}")
+        log.info("ready: %s", self._summary())
+        period = min(self.notifier.watchdog_s / 2, 1.0) if self.notifier.watchdog_s else 1.0
+        ticks = 0
+        while True:
+            await anyio.sleep(period)
+            ticks += 1
+            now = self.clock.now_ns()
+            stalled = [w.key for w in self.workers if now - w.heartbeat_ns > STALL_NS]
+            if stalled:
+                log.error("bus worker(s) hung: %s; letting the watchdog fire", ", ".join(stalled))
+            else:
+                self.notifier.notify("WATCHDOG=1")
+            if ticks % max(1, round(5 / period)) == 0:
+                self.notifier.notify(f"STATUS={self._summary()}")

@@ -1,0 +1,216 @@
+"""One device at run time: driver + pipeline + publishers + health counters.
+
+Everything here runs in the device's bus worker thread. Counters are plain ints read by the status
+queryable from Zenoh's thread: CPython makes each read atomic, and status is a snapshot anyway.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from typing import Any
+
+from imud.buses.models import describe
+from imud.calibration import Calibration
+from imud.chips.base import ChipSim, DeviceBase, Driver
+from imud.errors import BusError, DeviceIdentityError, RegisterMismatch
+from imud.pipeline import Pipeline
+from imud.timestamps import SampleClock
+from imud.wire import KIND_TRUTH, encode
+
+log = logging.getLogger("imud.device")
+
+Publish = Callable[[bytes], None]
+MAX_CONSECUTIVE_FAILURES = 10
+RETRY_MIN_NS = 500_000_000
+RETRY_MAX_NS = 30_000_000_000
+
+
+class DeviceRunner:
+    def __init__(
+        self,
+        cfg: DeviceBase,
+        driver: Driver | None,
+        calibration: Calibration | None,
+        publish: Publish,
+        epoch_offset_ns: int,
+        *,
+        sim: ChipSim | None = None,
+        publish_truth: Publish | None = None,
+        now_ns: Callable[[], int] = time.monotonic_ns,
+    ) -> None:
+        self.cfg = cfg
+        self.driver = driver
+        self.calibration = calibration
+        self.publish = publish
+        self.publish_truth = publish_truth
+        self.sim = sim
+        self.epoch_offset_ns = epoch_offset_ns
+        self.now_ns = now_ns
+        self.state = "starting" if driver is not None else "error"
+        self.last_error: str | None = None
+        self.samples = 0
+        self.lost_samples = 0
+        self.bus_errors = 0
+        self.restarts = 0
+        self.batches = 0
+        self.temperature_c: float | None = None
+        self.measured_rate_hz = 0.0
+        self._rate_window: deque[tuple[int, int]] = deque()
+        self._failures = 0
+        self._retry_ns = RETRY_MIN_NS
+        self.next_due_ns = 0
+        self.pipeline: Pipeline | None = None
+        self._starting: Iterator[int] | None = None
+        self._sclock: SampleClock | None = None
+
+    # --- lifecycle --------------------------------------------------------------------------
+    def _fail(self, msg: str, now: int) -> None:
+        if self.state != "error" or self.last_error != msg:
+            log.error("%s: %s; retrying in %.1f s", self.cfg.name, msg, self._retry_ns / 1e9)
+        self.state = "error"
+        self.last_error = msg
+        self.next_due_ns = now + self._retry_ns
+        self._retry_ns = min(self._retry_ns * 2, RETRY_MAX_NS)
+
+    def _start(self, now: int) -> None:
+        """Advance the driver's start sequence by one step; the bus is free between steps."""
+        assert self.driver is not None
+        if self._starting is None:
+            self._starting = self.driver.start()
+        try:
+            wait = next(self._starting)
+            self.next_due_ns = now + wait
+            return
+        except StopIteration:
+            self._starting = None
+        except (BusError, DeviceIdentityError, OSError) as e:
+            self._starting = None
+            if isinstance(e, BusError):
+                self.bus_errors += 1
+            self._fail(f"start failed: {e}", self.now_ns())
+            return
+        if self._sclock is None:
+            self._sclock = SampleClock(self.driver.nominal_period_ns)
+        else:  # a re-initialised chip restarts its sample grid; keep seq counting across it
+            self._sclock.rebase()
+        self.pipeline = Pipeline(self._sclock, self.calibration, self.epoch_offset_ns)
+        if self.state == "error":
+            log.warning("%s: recovered after: %s", self.cfg.name, self.last_error)
+        else:
+            log.info(
+                "%s: %s on %s running at %g Hz",
+                self.cfg.name,
+                getattr(self.cfg, "chip", "?"),
+                describe(self.cfg.bus),
+                getattr(self.cfg, "odr_hz", 0.0),
+            )
+        self.state = "running"
+        self._failures = 0
+        self._retry_ns = RETRY_MIN_NS
+        self.next_due_ns = self.now_ns() + self.driver.poll_interval_ns
+
+    def stop(self) -> None:
+        if self.driver is not None and self.state == "running":
+            self.driver.stop()
+        self.state = "stopped"
+
+    # --- one scheduling step ------------------------------------------------------------------
+    def step(self) -> None:
+        """Start, retry or poll, whichever is due. Never raises for chip or bus trouble."""
+        now = self.now_ns()
+        if self.driver is None:
+            self.next_due_ns = now + RETRY_MAX_NS
+            return
+        if self.state != "running":
+            self._start(now)
+            return
+        self.next_due_ns = now + self.driver.poll_interval_ns
+        try:
+            raw = self.driver.read()
+        except RegisterMismatch as e:
+            self.restarts += 1
+            self.last_error = str(e)
+            log.warning("%s: %s", self.cfg.name, e)
+            self.state = "starting"
+            self._start(now)
+            return
+        except (BusError, OSError) as e:
+            self.bus_errors += 1
+            self._failures += 1
+            self.last_error = f"bus error: {e}"
+            if self._failures > MAX_CONSECUTIVE_FAILURES:
+                self.restarts += 1
+                self._fail(f"{self._failures} bus errors in a row, last: {e}", now)
+            return
+        self._failures = max(0, self._failures - 1)
+        assert self.pipeline is not None
+        batch = self.pipeline.process(raw)
+        self.lost_samples += batch.lost_before
+        if batch.n:
+            self.publish(
+                encode(
+                    self.cfg.name,
+                    batch.first_seq,
+                    batch.t_ns,
+                    batch.accel,
+                    batch.gyro,
+                    batch.temperature_c,
+                    flags=batch.flags,
+                    lost_before=batch.lost_before,
+                )
+            )
+            self.samples += batch.n
+            self.batches += 1
+            self.temperature_c = float(batch.temperature_c[-1])
+        self._publish_truth()
+        self._update_rate(now)
+
+    def _publish_truth(self) -> None:
+        if self.sim is None or self.publish_truth is None:
+            return
+        t = self.sim.drain_truth()
+        if t is not None:
+            self.publish_truth(
+                encode(
+                    self.cfg.name,
+                    int(t["index"]),
+                    t["t_ns"] + self.epoch_offset_ns,
+                    t["accel"],
+                    t["gyro"],
+                    t["temp"],
+                    kind=KIND_TRUTH,
+                )
+            )
+
+    def _update_rate(self, now: int, window_ns: int = 5_000_000_000) -> None:
+        w = self._rate_window
+        w.append((now, self.samples))
+        while len(w) > 2 and now - w[1][0] >= window_ns:
+            w.popleft()
+        if len(w) >= 2 and now > w[0][0]:
+            self.measured_rate_hz = (w[-1][1] - w[0][1]) * 1e9 / (now - w[0][0])
+
+    # --- status -----------------------------------------------------------------------------
+    def status(self) -> dict[str, Any]:
+        c = self.driver.counters if self.driver is not None else None
+        return {
+            "name": self.cfg.name,
+            "chip": getattr(self.cfg, "chip", None),
+            "bus": describe(self.cfg.bus),
+            "state": self.state,
+            "odr_hz": getattr(self.cfg, "odr_hz", None),
+            "measured_rate_hz": round(self.measured_rate_hz, 3),
+            "chip_rate_hz": round(self._sclock.rate_hz, 3) if self._sclock else None,
+            "samples": self.samples,
+            "lost_samples": self.lost_samples,
+            "fifo_overflows": c.fifo_overflows if c else 0,
+            "bus_errors": self.bus_errors,
+            "bad_registers": c.bad_registers if c else 0,
+            "restarts": self.restarts,
+            "temperature_c": None if self.temperature_c is None else round(self.temperature_c, 2),
+            "calibration": str(self.calibration.path) if self.calibration else None,
+            "last_error": self.last_error,
+        }

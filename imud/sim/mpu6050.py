@@ -1,0 +1,257 @@
+"""Register-level MPU6050 simulator: registers, sample clock, 1024-byte FIFO, physics.
+
+Samples are produced lazily: every bus access first advances the chip to the clock's present, so
+the same model runs in real time (daemon) or at virtual time (tests, benchmarks).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from imud.chips import mpu6050 as r
+from imud.clock import Clock
+from imud.sim.physics import (
+    ChipFigures,
+    ErrorModel,
+    MotionModel,
+    TemperatureModel,
+    quantise,
+)
+from imud.sim.settings import SimSettings
+
+# Datasheet figures (seed-facts.md); bias and drift sigmas are typical turn-on spreads, moderated
+FIGURES = ChipFigures(
+    accel_noise_ug_rthz=400.0,
+    gyro_noise_dps_rthz=0.005,
+    accel_bias_mg=25.0,
+    gyro_bias_dps=1.0,
+    accel_bias_instability_ug=100.0,
+    gyro_bias_instability_dph=20.0,
+    scale_error=0.01,
+    misalignment_deg=0.3,
+    accel_temp_drift_mg_per_c=0.5,
+    gyro_temp_drift_dps_per_c=0.02,
+)
+
+RESET_BUSY_NS = 20_000_000  # the chip ignores the bus while it reloads after DEVICE_RESET
+CHUNK = 50_000
+_WRITABLE = {
+    r.SMPLRT_DIV,
+    r.CONFIG,
+    r.GYRO_CONFIG,
+    r.ACCEL_CONFIG,
+    r.FIFO_EN,
+    r.INT_ENABLE,
+    r.SIGNAL_PATH_RESET,
+    r.USER_CTRL,
+    r.PWR_MGMT_1,
+    r.PWR_MGMT_2,
+}
+
+
+class ResetInProgress(OSError):
+    pass
+
+
+class Mpu6050Sim:
+    def __init__(self, settings: SimSettings, clock: Clock) -> None:
+        self.settings = settings
+        self.clock = clock
+        self.t_origin_ns = clock.now_ns()  # physics time zero
+        self.motion = MotionModel(settings.motion)
+        self.temp = TemperatureModel(settings)
+        self.errors = ErrorModel(FIGURES, settings)
+        self.clock_error = self.errors.clock_error
+        self.record_truth = settings.truth
+        self._truth: list[dict[str, Any]] = []
+        self.samples_produced = 0  # chip samples since power-on (truth index)
+        self.fifo_bytes_dropped = 0
+        self._power_on_reset()
+
+    # --- chip state -----------------------------------------------------------------------
+    def _power_on_reset(self) -> None:
+        self.regs = bytearray(128)
+        self.regs[r.PWR_MGMT_1] = r.PWR1_SLEEP
+        self.regs[r.WHO_AM_I] = r.WHO_AM_I_VALUE
+        self.fifo = bytearray()
+        self.last_fifo_byte = 0
+        self.int_status = 0
+        self.active = False
+        self.busy_until_ns = 0
+        self.latest_accel = np.zeros(3, dtype=np.int32)
+        self.latest_gyro = np.zeros(3, dtype=np.int32)
+        self._accel_hold: tuple[int, np.ndarray] | None = None
+        self._anchor(self.clock.now_ns())
+
+    def _anchor(self, now: int) -> None:
+        """Restart the sample grid: the next sample comes one period after `now`."""
+        self.grid_origin_ns = float(now)
+        self.next_k = 1
+
+    @property
+    def dlpf_cfg(self) -> int:
+        return self.regs[r.CONFIG] & 0x07
+
+    @property
+    def internal_hz(self) -> float:
+        return 8000.0 if self.dlpf_cfg in (0, 7) else 1000.0
+
+    @property
+    def rate_hz(self) -> float:
+        """True output rate: nominal internal/(1+div), off by the oscillator error."""
+        return self.internal_hz / (1 + self.regs[r.SMPLRT_DIV]) * (1 + self.clock_error)
+
+    @property
+    def accel_lsb(self) -> float:
+        return r.accel_scale_ms2(r.ACCEL_RANGES_G[(self.regs[r.ACCEL_CONFIG] >> 3) & 3])
+
+    @property
+    def gyro_lsb(self) -> float:
+        return r.gyro_scale_rads(r.GYRO_RANGES_DPS[(self.regs[r.GYRO_CONFIG] >> 3) & 3])
+
+    def true_temperature(self, now_ns: int | None = None) -> float:
+        t = (self.clock.now_ns() if now_ns is None else now_ns) - self.t_origin_ns
+        return float(self.temp.at(np.array([t / 1e9]))[0])
+
+    # --- sampling -------------------------------------------------------------------------
+    def advance(self) -> None:
+        now = self.clock.now_ns()
+        if not self.active:
+            return
+        period = 1e9 / self.rate_hz
+        k_max = math.floor((now - self.grid_origin_ns) / period)
+        while self.next_k <= k_max:
+            k_end = min(k_max, self.next_k + CHUNK - 1)
+            ks = np.arange(self.next_k, k_end + 1, dtype=np.float64)
+            self._produce(np.floor(self.grid_origin_ns + ks * period).astype(np.int64))
+            self.next_k = k_end + 1
+
+    def _produce(self, t_ns: np.ndarray) -> None:
+        n = t_ns.shape[0]
+        t_s = (t_ns - self.t_origin_ns) / 1e9
+        f, w = self.motion.sample(t_s)
+        temp = self.temp.at(t_s)
+        fm, wm = self.errors.apply(t_s, f, w, temp, self.rate_hz)
+        if self.internal_hz == 8000.0:
+            fm = self._hold_accel_1khz(t_ns, fm)
+        acc = quantise(fm, self.accel_lsb)
+        gyr = quantise(wm, self.gyro_lsb)
+        self.latest_accel, self.latest_gyro = acc[-1], gyr[-1]
+        self.latest_temp_raw = int(np.rint((temp[-1] - 36.53) * 340.0))
+        self.int_status |= r.INT_DATA_RDY
+        if self.regs[r.USER_CTRL] & r.USER_CTRL_FIFO_EN and self.regs[r.FIFO_EN]:
+            self._push_fifo(acc, gyr, temp)
+        if self.record_truth:
+            self._truth.append(
+                {"index": self.samples_produced, "t_ns": t_ns, "accel": f, "gyro": w, "temp": temp}
+            )
+            if len(self._truth) > 10_000:  # nobody drains: keep the newest
+                del self._truth[:5_000]
+        self.samples_produced += n
+
+    def _hold_accel_1khz(self, t_ns: np.ndarray, fm: np.ndarray) -> np.ndarray:
+        """With the DLPF off the gyro runs at 8 kHz but the accel at 1 kHz: hold accel values."""
+        period = 1e6 / (1 + self.clock_error)
+        idx = np.floor((t_ns - self.grid_origin_ns) / period).astype(np.int64)
+        first = np.ones(len(idx), dtype=bool)
+        first[1:] = idx[1:] != idx[:-1]
+        if self._accel_hold is not None and idx[0] == self._accel_hold[0]:
+            first[0] = False
+            fm[0] = self._accel_hold[1]
+        pos = np.maximum.accumulate(np.where(first, np.arange(len(idx)), 0))
+        out = fm[pos]
+        self._accel_hold = (int(idx[-1]), out[-1].copy())
+        return out
+
+    def _push_fifo(self, acc: np.ndarray, gyr: np.ndarray, temp: np.ndarray) -> None:
+        en = self.regs[r.FIFO_EN]
+        cols: list[np.ndarray] = []
+        if en & r.FIFO_EN_ACCEL:
+            cols.append(acc)
+        if en & r.FIFO_EN_TEMP:
+            cols.append(np.rint((temp - 36.53) * 340.0).astype(np.int32)[:, None])
+        for bit, axis in ((r.FIFO_EN_XG, 0), (r.FIFO_EN_YG, 1), (r.FIFO_EN_ZG, 2)):
+            if en & bit:
+                cols.append(gyr[:, axis : axis + 1])
+        if not cols:
+            return
+        words = np.concatenate(cols, axis=1).astype(">i2")
+        self.fifo += words.tobytes()
+        excess = len(self.fifo) - r.FIFO_SIZE
+        if excess > 0:  # the MPU6050 overwrites its oldest bytes and flags the overflow
+            del self.fifo[:excess]
+            self.fifo_bytes_dropped += excess
+            self.int_status |= r.INT_FIFO_OFLOW
+
+    # --- bus side ---------------------------------------------------------------------------
+    def _check_busy(self) -> None:
+        if self.clock.now_ns() < self.busy_until_ns:
+            raise ResetInProgress(121, "Remote I/O error (MPU6050 resetting)")
+
+    def read(self, register: int, length: int) -> bytes:
+        self._check_busy()
+        self.advance()
+        if register == r.FIFO_R_W:
+            out = bytearray(self.fifo[:length])
+            del self.fifo[:length]
+            if out:
+                self.last_fifo_byte = out[-1]
+            out += bytes([self.last_fifo_byte]) * (length - len(out))
+            return bytes(out)
+        image = bytearray(self.regs)
+        image[r.INT_STATUS] = self.int_status
+        data = np.concatenate(
+            [self.latest_accel, [getattr(self, "latest_temp_raw", 0)], self.latest_gyro]
+        ).astype(">i2")
+        image[r.ACCEL_XOUT_H : r.GYRO_XOUT_H + 6] = data.tobytes()
+        image[r.FIFO_COUNT_H : r.FIFO_COUNT_H + 2] = len(self.fifo).to_bytes(2, "big")
+        end = min(register + length, len(image))
+        if register <= r.INT_STATUS < end:
+            self.int_status = 0  # INT_STATUS clears on read
+        return bytes(image[register:end]) + bytes(register + length - end)
+
+    def write(self, register: int, data: bytes) -> None:
+        self._check_busy()
+        self.advance()
+        for i, value in enumerate(data):
+            self._write_one(register + i, value)
+
+    def _write_one(self, reg: int, value: int) -> None:
+        if reg not in _WRITABLE:
+            return  # read-only or reserved: silicon ignores it
+        now = self.clock.now_ns()
+        if reg == r.PWR_MGMT_1:
+            if value & r.PWR1_DEVICE_RESET:
+                self._power_on_reset()
+                self.busy_until_ns = now + RESET_BUSY_NS
+                return
+            was_active = self.active
+            self.regs[reg] = value
+            self.active = not value & r.PWR1_SLEEP
+            if self.active and not was_active:
+                self._anchor(now)
+            return
+        if reg == r.USER_CTRL:
+            if value & r.USER_CTRL_FIFO_RESET:
+                self.fifo.clear()
+            self.regs[reg] = value & ~(r.USER_CTRL_FIFO_RESET | 0x03)  # reset bits self-clear
+            return
+        old = self.regs[reg]
+        self.regs[reg] = value
+        if reg in (r.SMPLRT_DIV, r.CONFIG) and old != value:
+            self._anchor(now)
+
+    def drain_truth(self) -> dict[str, Any] | None:
+        if not self._truth:
+            return None
+        parts, self._truth = self._truth, []
+        return {
+            "index": parts[0]["index"],
+            "t_ns": np.concatenate([p["t_ns"] for p in parts]),
+            "accel": np.concatenate([p["accel"] for p in parts]),
+            "gyro": np.concatenate([p["gyro"] for p in parts]),
+            "temp": np.concatenate([p["temp"] for p in parts]),
+        }

@@ -1,0 +1,128 @@
+"""Per-sample timestamps from the chip's own sample clock, and sequence numbers that count chip
+samples (so a gap is a count of lost samples).
+
+A polled FIFO tells us, at each read, that its newest sample k was produced no later than the end
+of the count read (t_after) and that sample k+1 was not produced before its start (t_before). The
+chip's samples lie on a line t_k = a + k p, p being the chip's real period (its oscillator is off by
+up to a few percent). We fit that line to the midpoints of those bounds with an exponentially
+forgetting least-squares fit (O(1) per read), then shift it by the least amount that satisfies the
+hard bounds of the recent reads. Samples lost to a FIFO reset are counted from the same line: the
+chip's sample clock keeps running while its FIFO is emptied.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+
+@dataclass(slots=True)
+class Stamped:
+    first_seq: int
+    lost_before: int
+    t_ns: npt.NDArray[np.int64]
+
+
+class SampleClock:
+    def __init__(self, nominal_period_ns: float, memory_reads: int = 500, recent: int = 32) -> None:
+        self.nominal = nominal_period_ns
+        self.period = nominal_period_ns
+        self.memory = memory_reads
+        self.k_last = -1  # index of the newest delivered sample
+        self.last_ts: int | None = None
+        self._pending_resync = False
+        self._rebase = False
+        self._count = 0
+        self._k_ref = 0
+        self._t_ref = 0
+        self._mk = 0.0
+        self._my = 0.0
+        self._vk = 0.0
+        self._cky = 0.0
+        self._recent: deque[tuple[int, int, int]] = deque(maxlen=recent)
+
+    @property
+    def rate_hz(self) -> float:
+        """The chip's measured output rate."""
+        return 1e9 / self.period
+
+    def _line(self, k: npt.NDArray[np.float64] | float) -> npt.NDArray[np.float64] | float:
+        return self._t_ref + self._my + self.period * (np.asarray(k) - self._k_ref - self._mk)
+
+    def _observe(self, k: int, t_before: int, t_after: int) -> None:
+        if self._count == 0:
+            self._k_ref, self._t_ref = k, t_after
+        self._count += 1
+        alpha = 1.0 / min(self._count, self.memory)
+        x = float(k - self._k_ref)
+        y = (t_before + t_after - self.period) / 2.0 - self._t_ref  # middle of the feasible band
+        dx, dy = x - self._mk, y - self._my
+        self._mk += alpha * dx
+        self._my += alpha * dy
+        self._vk = (1 - alpha) * (self._vk + alpha * dx * dx)
+        self._cky = (1 - alpha) * (self._cky + alpha * dx * dy)
+        if self._count >= 3 and self._vk > 4.0:
+            p = self._cky / self._vk
+            # a chip is off by a few percent at most: anything else is a bad fit, keep the old
+            if 0.9 * self.nominal < p < 1.1 * self.nominal:
+                self.period = p
+        self._recent.append((k, t_before, t_after))
+
+    def _correction(self) -> float:
+        """Smallest shift of the fitted line that meets every recent read's hard bounds."""
+        if not self._recent:
+            return 0.0
+        arr = np.asarray(self._recent, dtype=np.float64)
+        k, tb, ta = arr[:, 0], arr[:, 1], arr[:, 2]
+        hi = float(np.min(ta - self._line(k)))  # t_k <= t_after
+        lo = float(np.max(tb - self._line(k + 1)))  # t_{k+1} > t_before
+        if lo > hi:  # inconsistent (a slow read, a rate change): split the difference
+            return (lo + hi) / 2.0
+        return min(max(0.0, lo), hi)
+
+    def _index_at(self, t_before: int, t_after: int) -> int:
+        mid = (t_before + t_after) / 2.0 - self._correction()
+        return math.floor((mid - self._t_ref - self._my) / self.period + self._k_ref + self._mk)
+
+    def rebase(self) -> None:
+        """The chip was reinitialised: its sample grid restarted. Keep counting from the gap."""
+        self._count = 0
+        self._vk = self._cky = self._mk = self._my = 0.0
+        self.period = self.nominal
+        self._recent.clear()
+        self._rebase = True
+        self._pending_resync = False
+
+    def update(self, n: int, t_before: int, t_after: int, resync: bool = False) -> Stamped:
+        """Stamp a batch of `n` samples whose newest was latched between the two host times."""
+        resync = resync or self._pending_resync
+        if n == 0:
+            self._pending_resync = resync
+            if not resync and not self._rebase and self.k_last >= 0:
+                self._observe(self.k_last, t_before, t_after)
+            return Stamped(self.k_last + 1, 0, np.zeros(0, dtype=np.int64))
+        self._pending_resync = False
+        if self.k_last < 0:
+            k_new = n - 1
+        elif self._rebase:  # no fit yet on the new grid: count the gap at the nominal period
+            gap = ((t_before + t_after) / 2.0 - (self.last_ts or 0)) / self.period
+            k_new = self.k_last + max(n, round(gap))
+            self._rebase = False
+        elif resync:
+            k_new = max(self._index_at(t_before, t_after), self.k_last + n)
+        else:
+            k_new = self.k_last + n
+        first = k_new - n + 1
+        lost = first - (self.k_last + 1) if self.k_last >= 0 else 0
+        self._observe(k_new, t_before, t_after)
+        ks = np.arange(first, k_new + 1, dtype=np.float64)
+        t = np.rint(np.asarray(self._line(ks)) + self._correction()).astype(np.int64)
+        if self.last_ts is not None:  # strictly increasing across batches, whatever the fit did
+            t = np.maximum(t, self.last_ts + 1 + np.arange(n, dtype=np.int64))
+        self.last_ts = int(t[-1])
+        self.k_last = k_new
+        return Stamped(first, lost, t)

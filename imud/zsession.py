@@ -1,0 +1,37 @@
+"""Zenoh configs imud builds: multicast scouting off, explicit endpoints, SHM off by default."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import zenoh
+
+from imud.config import DEFAULT_ENDPOINT, ZenohSettings
+
+
+def daemon_config(s: ZenohSettings) -> zenoh.Config:
+    d: dict[str, Any] = {
+        "mode": s.mode,
+        "listen": {"endpoints": s.listen},
+        "connect": {"endpoints": s.connect},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"shared_memory": {"enabled": s.shared_memory}},
+    }
+    cfg = zenoh.Config.from_json5(json.dumps(d))
+    for key, value in s.options.items():
+        cfg.insert_json5(key, json.dumps(value))
+    # the pass-through table must not switch multicast back on behind the user's back silently
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    return cfg
+
+
+def client_config(endpoint: str = DEFAULT_ENDPOINT) -> zenoh.Config:
+    """For the CLI and tools: a client that connects to one daemon and listens nowhere."""
+    d = {
+        "mode": "client",
+        "connect": {"endpoints": [endpoint]},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"shared_memory": {"enabled": False}},
+    }
+    return zenoh.Config.from_json5(json.dumps(d))
