@@ -64,6 +64,7 @@ class DeviceRunner:
         self.next_due_ns = 0
         self.pipeline: Pipeline | None = None
         self._starting: Iterator[int] | None = None
+        self._phase = 0.0
         self._sclock: SampleClock | None = None
 
     # --- lifecycle --------------------------------------------------------------------------
@@ -127,7 +128,7 @@ class DeviceRunner:
         if self.state != "running":
             self._start(now)
             return
-        self.next_due_ns = now + self.driver.poll_interval_ns
+        self.next_due_ns = now + self._poll_delay()
         try:
             raw = self.driver.read()
         except RegisterMismatch as e:
@@ -167,6 +168,14 @@ class DeviceRunner:
             self.temperature_c = float(batch.temperature_c[-1])
         self._publish_truth()
         self._update_rate(now)
+
+    def _poll_delay(self) -> int:
+        """Poll interval plus a golden-ratio fraction of a sample period: read instants then
+        sweep every phase of the chip's sample clock, which is what pins its timing down (a
+        poll interval near a whole number of periods would otherwise see one phase forever)."""
+        assert self.driver is not None
+        self._phase = (self._phase + 0.6180339887) % 1.0
+        return self.driver.poll_interval_ns + int(self._phase * self.driver.nominal_period_ns)
 
     def _publish_truth(self) -> None:
         if self.sim is None or self.publish_truth is None:

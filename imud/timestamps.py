@@ -37,13 +37,15 @@ class SampleClock:
         self._pending_resync = False
         self._rebase = False
         self._count = 0
+        self._seg_n = 0
         self._k_ref = 0
         self._t_ref = 0
         self._mk = 0.0
         self._my = 0.0
         self._vk = 0.0
         self._cky = 0.0
-        self._recent: deque[tuple[int, int, int]] = deque(maxlen=recent)
+        self._recent: deque[tuple[int, int, int, int]] = deque(maxlen=recent)
+        self._segment = 0
 
     @property
     def rate_hz(self) -> float:
@@ -53,36 +55,52 @@ class SampleClock:
     def _line(self, k: npt.NDArray[np.float64] | float) -> npt.NDArray[np.float64] | float:
         return self._t_ref + self._my + self.period * (np.asarray(k) - self._k_ref - self._mk)
 
-    def _observe(self, k: int, t_before: int, t_after: int) -> None:
+    def _observe(self, k: int, t_before: int, t_after: int, new_segment: bool = False) -> None:
+        """Add one read to the fit. The slope is pooled over segments between FIFO resyncs, so a
+        gap whose sample count was misjudged by one cannot bias it."""
         if self._count == 0:
             self._k_ref, self._t_ref = k, t_after
         self._count += 1
-        alpha = 1.0 / min(self._count, self.memory)
+        if new_segment:
+            self._seg_n = 0
+            self._segment += 1
+        self._seg_n += 1
+        alpha = max(1.0 / self._seg_n, 1.0 / self.memory)
+        forget = 1.0 - 1.0 / self.memory
         x = float(k - self._k_ref)
         y = (t_before + t_after - self.period) / 2.0 - self._t_ref  # middle of the feasible band
         dx, dy = x - self._mk, y - self._my
         self._mk += alpha * dx
         self._my += alpha * dy
-        self._vk = (1 - alpha) * (self._vk + alpha * dx * dx)
-        self._cky = (1 - alpha) * (self._cky + alpha * dx * dy)
+        self._vk = forget * self._vk + (1 - alpha) * dx * dx
+        self._cky = forget * self._cky + (1 - alpha) * dx * dy
         if self._count >= 3 and self._vk > 4.0:
             p = self._cky / self._vk
             # a chip is off by a few percent at most: anything else is a bad fit, keep the old
             if 0.9 * self.nominal < p < 1.1 * self.nominal:
                 self.period = p
-        self._recent.append((k, t_before, t_after))
+        self._recent.append((k, t_before, t_after, self._segment))
 
-    def _correction(self) -> float:
-        """Smallest shift of the fitted line that meets every recent read's hard bounds."""
-        if not self._recent:
-            return 0.0
-        arr = np.asarray(self._recent, dtype=np.float64)
-        k, tb, ta = arr[:, 0], arr[:, 1], arr[:, 2]
+    def _band(self, rows: npt.NDArray[np.float64]) -> tuple[float, float]:
+        k, tb, ta = rows[:, 0], rows[:, 1], rows[:, 2]
         hi = float(np.min(ta - self._line(k)))  # t_k <= t_after
         lo = float(np.max(tb - self._line(k + 1)))  # t_{k+1} > t_before
-        if lo > hi:  # inconsistent (a slow read, a rate change): split the difference
-            return (lo + hi) / 2.0
-        return min(max(0.0, lo), hi)
+        return lo, hi
+
+    def _correction(self) -> float:
+        """Shift of the fitted line to the middle of the band the recent reads allow.
+
+        Reads from before the last resync count only while they agree with the current ones: if
+        a gap was misjudged by a sample, they would pull the line off by a period."""
+        if not self._recent:
+            return 0.0
+        rows = np.asarray(self._recent, dtype=np.float64)
+        lo, hi = self._band(rows)
+        if lo > hi:
+            current = rows[rows[:, 3] == self._segment]
+            if len(current):
+                lo, hi = self._band(current)
+        return (lo + hi) / 2.0
 
     def _index_at(self, t_before: int, t_after: int) -> int:
         mid = (t_before + t_after) / 2.0 - self._correction()
@@ -91,6 +109,7 @@ class SampleClock:
     def rebase(self) -> None:
         """The chip was reinitialised: its sample grid restarted. Keep counting from the gap."""
         self._count = 0
+        self._seg_n = 0
         self._vk = self._cky = self._mk = self._my = 0.0
         self.period = self.nominal
         self._recent.clear()
@@ -118,7 +137,7 @@ class SampleClock:
             k_new = self.k_last + n
         first = k_new - n + 1
         lost = first - (self.k_last + 1) if self.k_last >= 0 else 0
-        self._observe(k_new, t_before, t_after)
+        self._observe(k_new, t_before, t_after, new_segment=resync)
         ks = np.arange(first, k_new + 1, dtype=np.float64)
         t = np.rint(np.asarray(self._line(ks)) + self._correction()).astype(np.int64)
         if self.last_ts is not None:  # strictly increasing across batches, whatever the fit did

@@ -155,6 +155,9 @@ def decode_status_block(block: bytes) -> tuple[int, int]:
     return block[0], int.from_bytes(block[7:9], "big", signed=True)
 
 
+_NONE = np.zeros((0, 3), dtype=np.int32)
+
+
 class Mpu6050Driver:
     """FIFO-mode driver. Blocking; owned by its bus's worker thread."""
 
@@ -174,6 +177,7 @@ class Mpu6050Driver:
         self._check_index = 0
         self._last_check_ns = 0
         self._need_reset = False
+        self._resync = False
 
     def _register_plan(self) -> list[tuple[int, int]]:
         c = self.cfg
@@ -220,10 +224,16 @@ class Mpu6050Driver:
                     f"register 0x{reg:02x} reads 0x{got:02x} after writing 0x{val:02x}"
                 )
         self._fifo_restart()
+        self._resync = False  # a fresh start: the runner rebases its sample clock anyway
         self._last_check_ns = self.clock.now_ns()
 
     def _fifo_restart(self) -> None:
-        """Stop the FIFO, empty it, re-enable accel+gyro: the Linux/PX4 recovery sequence."""
+        """Stop the FIFO, empty it, re-enable accel+gyro: the Linux/PX4 recovery sequence.
+
+        Samples are discarded from the first write on, so the next batch returned must say so
+        (`resync`) even if this or a later transfer fails first."""
+        self._resync = True
+        self._need_reset = True
         self.dev.write_u8(FIFO_EN, 0)
         self.dev.write_u8(USER_CTRL, USER_CTRL_FIFO_RESET)
         self.dev.write_u8(FIFO_EN, FIFO_EN_XG | FIFO_EN_YG | FIFO_EN_ZG | FIFO_EN_ACCEL)
@@ -232,22 +242,29 @@ class Mpu6050Driver:
         self.counters.fifo_resets += 1
         self._need_reset = False
 
-    def _empty(self, t0: int, t1: int, resync: bool) -> RawBatch:
-        z = np.zeros((0, 3), dtype=np.int32)
-        return RawBatch(z, z, np.zeros(0), self.accel_scale, self.gyro_scale, t0, t1, resync=resync)
+    def _batch(
+        self,
+        accel: npt.NDArray[np.int32],
+        gyro: npt.NDArray[np.int32],
+        temp: float,
+        t_before: int,
+        t_after: int,
+    ) -> RawBatch:
+        resync, self._resync = self._resync, False
+        return RawBatch(
+            accel,
+            gyro,
+            np.full(accel.shape[0], temp),
+            self.accel_scale,
+            self.gyro_scale,
+            t_before,
+            t_after,
+            resync=resync,
+        )
 
     def read(self) -> RawBatch:
-        try:
-            return self._read()
-        except BusError:
-            self._need_reset = True  # a failed burst may leave the FIFO mid-sample
-            raise
-
-    def _read(self) -> RawBatch:
-        resync = False
         if self._need_reset:
             self._fifo_restart()
-            resync = True
         int_status, temp_raw = decode_status_block(self.dev.read(INT_STATUS, 9))
         temp = float(temperature_c(temp_raw))
         t_before = self.clock.now_ns()
@@ -257,23 +274,20 @@ class Mpu6050Driver:
         if int_status & INT_FIFO_OFLOW or count > FIFO_SIZE - 3 * SAMPLE_BYTES:
             self.counters.fifo_overflows += 1
             self._fifo_restart()
-            return self._empty(t_before, t_after, resync=True)
+            return self._batch(_NONE, _NONE, temp, t_before, t_after)
         n = count // SAMPLE_BYTES
         self._check_next_register()
         if n == 0:
-            return self._empty(t_before, t_after, resync)
-        data = self.dev.read(FIFO_R_W, n * SAMPLE_BYTES)
+            return self._batch(_NONE, _NONE, temp, t_before, t_after)
+        try:
+            data = self.dev.read(FIFO_R_W, n * SAMPLE_BYTES)
+        except BusError:
+            # the burst may have stopped mid-sample: the FIFO is no longer aligned. (A failed
+            # status or count read leaves the FIFO untouched and needs no reset.)
+            self._need_reset = True
+            raise
         accel, gyro = decode_fifo(data)
-        return RawBatch(
-            accel,
-            gyro,
-            np.full(n, temp),
-            self.accel_scale,
-            self.gyro_scale,
-            t_before,
-            t_after,
-            resync=resync,
-        )
+        return self._batch(accel, gyro, temp, t_before, t_after)
 
     def _check_next_register(self) -> None:
         """Every 100 ms verify one configured register; a mismatch means the chip was reset or

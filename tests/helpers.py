@@ -1,0 +1,94 @@
+"""Shared test plumbing: a simulated MPU6050 on a simulated bus at virtual time."""
+
+from __future__ import annotations
+
+import socket
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from imud.chips import CHIPS
+from imud.chips.mpu6050 import Mpu6050Config, Mpu6050Driver
+from imud.clock import VirtualClock
+from imud.config import parse_config
+from imud.device import DeviceRunner
+from imud.sim.i2c import SimI2CBus
+from imud.sim.mpu6050 import Mpu6050Sim
+from imud.wire import Batch, decode
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@dataclass
+class Rig:
+    cfg: Mpu6050Config
+    clock: VirtualClock
+    bus: SimI2CBus
+    sim: Mpu6050Sim
+    driver: Mpu6050Driver
+    runner: DeviceRunner
+    out: list[bytes] = field(default_factory=list)
+    truth: list[bytes] = field(default_factory=list)
+
+    def run(self, seconds: float, jitter_ns: int = 0, seed: int = 0) -> None:
+        """Let the runner schedule itself, at virtual time, for `seconds`."""
+        rng = np.random.default_rng(seed)
+        end = self.clock.now_ns() + int(seconds * 1e9)
+        while self.clock.now_ns() < end:
+            self.runner.step()
+            wait = max(0, self.runner.next_due_ns - self.clock.now_ns())
+            self.clock.advance(wait + (int(rng.integers(0, jitter_ns)) if jitter_ns else 0))
+
+    def batches(self) -> list[Batch]:
+        return [decode(b) for b in self.out]
+
+    def truth_batches(self) -> list[Batch]:
+        return [decode(b) for b in self.truth]
+
+
+def make_rig(device: dict[str, Any], sim: dict[str, Any] | None = None) -> Rig:
+    d = {"name": "t0", "chip": "mpu6050", "bus": {"kind": "sim"}, **device}
+    d["sim"] = {"truth": True, **(sim or {})}
+    cfg = parse_config({"device": [d]}).device[0]
+    assert isinstance(cfg, Mpu6050Config)
+    clock = VirtualClock()
+    bus = SimI2CBus()
+    spec = CHIPS["mpu6050"]
+    chip = spec.make_sim(cfg, clock)
+    assert cfg.sim is not None
+    bus.attach(cfg.bus.address, chip, cfg.sim.nak_rate)  # type: ignore[union-attr]
+    driver = spec.make_driver(cfg, bus, clock)
+    rig = Rig(cfg, clock, bus, chip, driver, None, [], [])  # type: ignore[arg-type]
+    rig.runner = DeviceRunner(
+        cfg,
+        driver,
+        None,
+        rig.out.append,
+        0,
+        sim=chip,
+        publish_truth=rig.truth.append,
+        now_ns=clock.now_ns,
+    )
+    return rig
+
+
+def concat(batches: list[Batch]) -> dict[str, np.ndarray]:
+    return {
+        "seq": np.concatenate([b.seq for b in batches]),
+        "t_ns": np.concatenate([b.t_ns for b in batches]),
+        "accel": np.concatenate([b.accel for b in batches]).astype(np.float64),
+        "gyro": np.concatenate([b.gyro for b in batches]).astype(np.float64),
+        "temp": np.concatenate([b.temperature_c for b in batches]).astype(np.float64),
+    }
+
+
+def match_truth(meas: dict[str, np.ndarray], truth: dict[str, np.ndarray]) -> np.ndarray:
+    """Index into truth of the true sample nearest in time to each measured sample."""
+    tt = truth["t_ns"]
+    i = np.clip(np.searchsorted(tt, meas["t_ns"]), 1, len(tt) - 1)
+    return np.where(np.abs(tt[i] - meas["t_ns"]) < np.abs(tt[i - 1] - meas["t_ns"]), i, i - 1)
