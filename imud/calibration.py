@@ -73,6 +73,10 @@ def load_calibration(path: Path) -> Calibration:
         raise CalibrationError(f"calibration file {path} does not exist") from e
     except tomllib.TOMLDecodeError as e:
         raise CalibrationError(f"calibration file {path}: TOML syntax error: {e}") from e
+    except UnicodeDecodeError as e:
+        raise CalibrationError(f"calibration file {path}: not UTF-8 text (byte {e.start})") from e
+    except OSError as e:  # a directory, no permission, ...
+        raise CalibrationError(f"calibration file {path}: cannot read: {e.strerror}") from e
     try:
         cf = CalibrationFile.model_validate(raw)
     except ValidationError as e:

@@ -51,7 +51,8 @@ class ZenohSettings(BaseModel):
     @classmethod
     def _endpoints(cls, v: list[str]) -> list[str]:
         for ep in v:
-            if ep.split("/", 1)[0] not in _PROTOCOLS or "/" not in ep:
+            proto, _, addr = ep.partition("/")
+            if proto not in _PROTOCOLS or not addr:
                 raise ValueError(f"{ep!r} is not a Zenoh endpoint like 'tcp/127.0.0.1:7447'")
         return v
 
@@ -82,6 +83,12 @@ class ImudConfig(BaseModel):
                         f"already taken by {slots[slot]!r}"
                     )
                 slots[slot] = d.name
+            transports = CHIPS[d.chip].transports
+            if not isinstance(d.bus, SimBus) and d.bus.kind not in transports:
+                raise ValueError(
+                    f"device[{i}] {d.name!r}: a {d.chip} cannot be on a {d.bus.kind} bus; "
+                    f'it works over: {", ".join(transports)} (or kind = "sim")'
+                )
             if d.sim is not None and not isinstance(d.bus, SimBus):
                 raise ValueError(
                     f'device[{i}] {d.name!r}: a [device.sim] table needs bus.kind = "sim" '
@@ -126,11 +133,14 @@ def _format(err: Any, raw: dict[str, Any]) -> str:
         return f"{where}: missing; this field is required"
     if kind == "extra_forbidden":
         return f"{where}: unknown field; check the spelling (see `imud config-schema`)"
-    if kind == "union_tag_invalid":
-        known = ", ".join(CHIPS)
-        return f"{where}: unknown chip {err['input'].get('chip')!r}; known chips: {known}"
-    if kind == "union_tag_not_found":
-        return f"{where}: missing 'chip' (one of: {', '.join(CHIPS)})"
+    if kind in ("union_tag_invalid", "union_tag_not_found"):
+        ctx = err.get("ctx") or {}
+        field = str(ctx.get("discriminator", "'kind'")).strip("'")
+        known = ctx.get("expected_tags") or ", ".join(repr(c) for c in CHIPS)
+        what = "chip" if field == "chip" else f"{where.rsplit(': ', 1)[-1]} {field}"
+        if kind == "union_tag_not_found":
+            return f"{where}: missing {field!r} (one of: {known})"
+        return f"{where}: unknown {what} {ctx.get('tag')!r}; known: {known}"
     inp = err.get("input")
     if not isinstance(inp, dict | list):  # a scalar: show the bad value
         return f"{where} = {inp!r}: {msg}" if where else msg
@@ -166,4 +176,8 @@ def load_config(path: str | Path) -> ImudConfig:
         raise ConfigError([f"{p}: is a directory, expected a TOML file"]) from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError([f"{p}: TOML syntax error: {e}"]) from None
+    except UnicodeDecodeError as e:
+        raise ConfigError([f"{p}: not UTF-8 text (byte {e.start}); TOML files are UTF-8"]) from None
+    except OSError as e:
+        raise ConfigError([f"{p}: cannot read: {e.strerror}"]) from None
     return parse_config(raw, p.parent.resolve())

@@ -92,7 +92,10 @@ def decode(buf: bytes) -> Batch:
     need = off + n * (8 + 12 + 12 + 4)
     if len(buf) != need:
         raise WireError(f"batch of {n} samples needs {need} bytes, got {len(buf)}")
-    device = bytes(buf[HEADER.size : HEADER.size + name_len]).decode()
+    try:
+        device = bytes(buf[HEADER.size : HEADER.size + name_len]).decode()
+    except UnicodeDecodeError as e:
+        raise WireError(f"device name at byte {HEADER.size + e.start} is not UTF-8") from None
     t = np.frombuffer(buf, "<i8", n, off)
     off += 8 * n
     acc = np.frombuffer(buf, "<f4", 3 * n, off).reshape(n, 3)

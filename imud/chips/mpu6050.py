@@ -102,7 +102,9 @@ class Mpu6050Config(DeviceBase):
     gyro_range_dps: Literal[250, 500, 1000, 2000] = 500
     accel_range_g: Literal[2, 4, 8, 16] = 4
     dlpf_hz: Literal[256, 188, 98, 42, 20, 10, 5] = 188
-    odr_hz: float = Field(1000.0, gt=0, description="internal/(1+SMPLRT_DIV), at most 1 kHz")
+    odr_hz: float = Field(
+        1000.0, gt=0, strict=True, description="internal/(1+SMPLRT_DIV), at most 1 kHz"
+    )
 
     @field_validator("odr_hz")
     @classmethod

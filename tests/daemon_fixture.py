@@ -1,0 +1,89 @@
+"""Run the real daemon as a subprocess on a loopback port, with a fake systemd notify socket."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from tests.helpers import free_port
+
+
+class DaemonProc:
+    def __init__(self, tmp: Path, config_body: str, watchdog_usec: int = 1_000_000) -> None:
+        self.port = free_port()
+        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        self.config = tmp / "imud.toml"
+        self.config.write_text(
+            f'[zenoh]\nlisten = ["{self.endpoint}"]\nprefix = "imud"\n\n' + config_body
+        )
+        self.notify_path = str(tmp / "notify.sock")
+        self.notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.notify.bind(self.notify_path)
+        self.notify.settimeout(0.1)
+        self.messages: list[str] = []
+        self.log = tmp / "daemon.log"
+        env = {
+            **os.environ,
+            "NOTIFY_SOCKET": self.notify_path,
+            "WATCHDOG_USEC": str(watchdog_usec),
+        }
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "imud", "run", "--config", str(self.config)],
+            stdout=subprocess.DEVNULL,
+            stderr=open(self.log, "wb"),  # noqa: SIM115 - owned by the process
+            env=env,
+        )
+
+    def cli(self, *args: str, timeout: float = 20.0) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "imud", *args],
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+        )
+
+    def status(self) -> dict[str, Any]:
+        r = self.cli("status", "--json", "--connect", self.endpoint)
+        assert r.returncode == 0, r.stderr
+        parsed: dict[str, Any] = json.loads(r.stdout)
+        return parsed
+
+    def drain_notify(self) -> list[str]:
+        while True:
+            try:
+                self.messages.append(self.notify.recv(4096).decode())
+            except (TimeoutError, BlockingIOError):
+                return self.messages
+
+    def wait_started(self, timeout: float = 20.0) -> dict[str, Any]:
+        """Until the daemon answers and no device is still starting."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            assert self.proc.poll() is None, self.log.read_text()
+            r = self.cli("status", "--json", "--connect", self.endpoint, "--timeout", "1")
+            if r.returncode == 0:
+                st: dict[str, Any] = json.loads(r.stdout)
+                if all(d["state"] != "starting" for d in st["devices"]):
+                    return st
+            time.sleep(0.2)
+        raise AssertionError(f"daemon did not start:\n{self.log.read_text()}")
+
+    def stop(self, sig: int = signal.SIGTERM) -> tuple[int, float]:
+        if self.proc.poll() is not None:
+            return self.proc.returncode, 0.0
+        t0 = time.monotonic()
+        self.proc.send_signal(sig)
+        try:
+            code = self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            code = self.proc.wait()
+        self.notify.close()
+        return code, time.monotonic() - t0

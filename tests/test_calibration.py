@@ -1,0 +1,149 @@
+"""Calibration files: corrected = T @ (raw - bias) per sensor, and the file's error messages."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from imud.calibration import CalibrationError, load_calibration
+
+
+def write(tmp_path: Path, text: str, name: str = "cal.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+BIAS_SCALE = """
+version = 1
+
+[accel]
+bias = [0.5, -0.25, 0.125]
+scale = [2.0, 0.5, 1.25]
+
+[gyro]
+bias = [0.01, 0.02, -0.03]
+scale = [1.0, 1.1, 0.9]
+"""
+
+# Not symmetric, so applying T where T transpose is due gives a different answer.
+MATRIX = """
+version = 1
+
+[accel]
+bias = [1.0, 2.0, 3.0]
+matrix = [[1.0, 0.5, 0.0],
+          [0.0, 2.0, 0.25],
+          [0.1, 0.0, 1.0]]
+"""
+
+
+def test_bias_and_scale_applied(tmp_path: Path) -> None:
+    cal = load_calibration(write(tmp_path, BIAS_SCALE))
+    accel = np.array([[1.5, 0.75, 9.125], [0.5, -0.25, 0.125]])
+    gyro = np.array([[0.11, -0.08, 0.07]])
+    a, g = cal.apply(accel, gyro)
+    # accel: (1.5-0.5)*2, (0.75+0.25)*0.5, (9.125-0.125)*1.25; second row is exactly the bias
+    np.testing.assert_allclose(a, [[2.0, 0.5, 11.25], [0.0, 0.0, 0.0]], atol=1e-12)
+    # gyro: (0.11-0.01)*1, (-0.08-0.02)*1.1, (0.07+0.03)*0.9
+    np.testing.assert_allclose(g, [[0.1, -0.11, 0.09]], atol=1e-12)
+
+
+def test_full_matrix_applied_not_transposed(tmp_path: Path) -> None:
+    cal = load_calibration(write(tmp_path, MATRIX))
+    accel = np.array([[2.0, 4.0, 7.0], [1.0, 2.0, 3.0]])  # raw - bias = (1, 2, 4) and (0, 0, 0)
+    gyro = np.array([[0.3, -0.2, 0.1]])
+    a, g = cal.apply(accel, gyro)
+    # T @ (1, 2, 4) = (1*1 + 0.5*2 + 0*4, 0*1 + 2*2 + 0.25*4, 0.1*1 + 0*2 + 1*4)
+    np.testing.assert_allclose(a, [[2.0, 5.0, 4.1], [0.0, 0.0, 0.0]], atol=1e-12)
+    np.testing.assert_allclose(g, gyro, atol=0)  # no [gyro] table: identity, no bias
+
+
+def test_apply_is_pure(tmp_path: Path) -> None:
+    cal = load_calibration(write(tmp_path, MATRIX))
+    accel = np.array([[2.0, 4.0, 7.0]])
+    gyro = np.array([[0.3, -0.2, 0.1]])
+    a, g = cal.apply(accel, gyro)
+    assert accel.tolist() == [[2.0, 4.0, 7.0]] and gyro.tolist() == [[0.3, -0.2, 0.1]]
+    assert not np.shares_memory(a, accel) and not np.shares_memory(g, gyro)
+
+
+def test_bias_only_and_empty_file(tmp_path: Path) -> None:
+    cal = load_calibration(write(tmp_path, "[gyro]\nbias = [0.5, 0.25, -1.0]\n"))
+    a, g = cal.apply(np.array([[1.0, 2.0, 3.0]]), np.array([[1.0, 1.0, 1.0]]))
+    np.testing.assert_array_equal(a, [[1.0, 2.0, 3.0]])
+    np.testing.assert_array_equal(g, [[0.5, 0.75, 2.0]])
+    empty = load_calibration(write(tmp_path, "", "empty.toml"))
+    a, g = empty.apply(np.array([[1.0, 2.0, 3.0]]), np.array([[4.0, 5.0, 6.0]]))
+    np.testing.assert_array_equal(a, [[1.0, 2.0, 3.0]])
+    np.testing.assert_array_equal(g, [[4.0, 5.0, 6.0]])
+
+
+def test_path_recorded(tmp_path: Path) -> None:
+    p = write(tmp_path, BIAS_SCALE)
+    assert load_calibration(p).path == p
+
+
+def test_scale_and_matrix_together_rejected(tmp_path: Path) -> None:
+    text = "[accel]\nscale = [1.0, 1.0, 1.0]\nmatrix = [[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]]\n"
+    p = write(tmp_path, text)
+    with pytest.raises(CalibrationError) as info:
+        load_calibration(p)
+    msg = str(info.value)
+    assert str(p) in msg
+    assert "accel" in msg
+    assert "scale" in msg and "matrix" in msg
+
+
+@pytest.mark.parametrize(
+    ("text", "key"),
+    [
+        ("[accel]\nbais = [0.0, 0.0, 0.0]\n", "accel.bais"),
+        ("[gyro]\nbias = [0.0, 0.0, 0.0]\noffset = 1.0\n", "gyro.offset"),
+        ("[mag]\nbias = [0.0, 0.0, 0.0]\n", "mag"),
+    ],
+)
+def test_unknown_key_named(tmp_path: Path, text: str, key: str) -> None:
+    p = write(tmp_path, text)
+    with pytest.raises(CalibrationError) as info:
+        load_calibration(p)
+    assert str(p) in str(info.value)
+    assert key in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("text", "where"),
+    [
+        ("[accel]\nbias = [1.0, 2.0]\n", "accel.bias"),
+        ("[accel]\nmatrix = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]\n", "accel.matrix"),
+        ('[gyro]\nscale = [1.0, "x", 1.0]\n', "gyro.scale"),
+        ("version = 2\n", "version"),
+    ],
+)
+def test_malformed_values_named(tmp_path: Path, text: str, where: str) -> None:
+    with pytest.raises(CalibrationError, match=where.replace(".", r"\.")):
+        load_calibration(write(tmp_path, text))
+
+
+def test_toml_syntax_error(tmp_path: Path) -> None:
+    p = write(tmp_path, "version = 1\n[accel]\nbias = = [0.0, 0.0, 0.0]\n")  # line 3
+    with pytest.raises(CalibrationError) as info:
+        load_calibration(p)
+    msg = str(info.value)
+    assert str(p) in msg
+    assert "TOML syntax error" in msg
+    assert "line 3" in msg
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    p = tmp_path / "nope.toml"
+    with pytest.raises(CalibrationError) as info:
+        load_calibration(p)
+    assert str(p) in str(info.value)
+    assert "does not exist" in str(info.value)
+
+
+def test_calibration_error_is_value_error() -> None:
+    assert issubclass(CalibrationError, ValueError)

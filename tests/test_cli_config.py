@@ -1,0 +1,106 @@
+"""`imud check-config` and `imud config-schema`, run as real subprocesses."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+SIM_TOML = REPO / "configs" / "sim.toml"
+
+
+def imud(*args: str, cwd: Path = REPO) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "imud", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+
+
+def test_check_config_sim_toml() -> None:
+    r = imud("check-config", "configs/sim.toml")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert [d["name"] for d in doc["device"]] == ["imu0", "imu1"]
+    assert [d["chip"] for d in doc["device"]] == ["mpu6050", "mpu6050"]
+    assert [d["odr_hz"] for d in doc["device"]] == [1000.0, 500.0]
+    assert [d["bus"]["address"] for d in doc["device"]] == [0x68, 0x69]
+    assert doc["zenoh"]["listen"] == ["tcp/127.0.0.1:7447"]
+    assert "Traceback" not in r.stderr
+
+
+def test_check_config_prints_resolved_calibration_path(tmp_path: Path) -> None:
+    (tmp_path / "etc").mkdir()
+    (tmp_path / "etc" / "imu.cal.toml").write_text("[gyro]\nbias = [0.0, 0.0, 0.0]\n")
+    (tmp_path / "etc" / "imud.toml").write_text(
+        '[[device]]\nname = "imu0"\nchip = "mpu6050"\nbus = { kind = "sim" }\n'
+        'calibration = "imu.cal.toml"\n'
+    )
+    r = imud("check-config", "etc/imud.toml", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    cal = json.loads(r.stdout)["device"][0]["calibration"]
+    assert Path(cal) == (tmp_path / "etc" / "imu.cal.toml").resolve()
+
+
+def test_check_config_invalid_file(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text(
+        '[zenoh]\nlisten = ["127.0.0.1:7447"]\n'
+        '[[device]]\nname = "imu0"\nchip = "mpu6050"\n'
+        'bus = { kind = "i2c", bus = 1, address = 0x68 }\ngyro_range_dps = 300\n'
+    )
+    r = imud("check-config", str(bad))
+    assert r.returncode == 2
+    assert r.stdout == ""
+    assert "Traceback" not in r.stderr
+    lines = r.stderr.splitlines()
+    assert lines[0] == f"{bad}: invalid config:"
+    problems = [ln.strip() for ln in lines[1:]]
+    assert len(problems) == 2, r.stderr  # one line per problem
+    assert any("device[0] 'imu0'" in p and "gyro_range_dps" in p and "300" in p for p in problems)
+    assert any("zenoh.listen" in p and "127.0.0.1:7447" in p for p in problems)
+
+
+def test_check_config_toml_syntax_error(tmp_path: Path) -> None:
+    bad = tmp_path / "syntax.toml"
+    bad.write_text('[zenoh]\nmode = "peer"\n\n[[device]\nname = "imu0"\n')  # line 4
+    r = imud("check-config", str(bad))
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr
+    assert "line 4" in r.stderr
+    assert str(bad) in r.stderr
+
+
+def test_check_config_missing_file(tmp_path: Path) -> None:
+    r = imud("check-config", str(tmp_path / "nope.toml"))
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr
+    assert "nope.toml" in r.stderr
+
+
+def test_config_schema() -> None:
+    r = imud("config-schema")
+    assert r.returncode == 0, r.stderr
+    schema = json.loads(r.stdout)
+    assert schema["type"] == "object"
+    assert {"zenoh", "device"} <= set(schema["properties"])
+    assert "mpu6050" in r.stdout
+    assert "gyro_range_dps" in r.stdout
+    mpu = next(d for d in schema["$defs"].values() if "gyro_range_dps" in d.get("properties", {}))
+    assert sorted(mpu["properties"]["gyro_range_dps"]["enum"]) == [250, 500, 1000, 2000]
+    assert mpu.get("additionalProperties") is False  # typos are rejected
+
+
+def test_check_config_binary_file_no_traceback(tmp_path: Path) -> None:
+    bad = tmp_path / "binary.toml"
+    bad.write_bytes(b"\xff\xfe\x00\x01")
+    r = imud("check-config", str(bad))
+    assert "Traceback" not in r.stderr
+    assert r.returncode == 2
