@@ -111,7 +111,7 @@ class RunResult:
     bus_errors: int = 0
     poll_ns: int = 0
     unaccounted: int = 0  # samples the chip produced that were neither delivered nor counted lost
-    wall: float = 0.0  # the whole timed loop
+    wall: float = 0.0  # the timed loop's busy wall time
     cpu: float = 0.0  # process CPU (all threads) over the loop
     thread_cpu: float = 0.0  # main-thread CPU over the loop
     sim_gen_wall: float = 0.0
@@ -155,7 +155,9 @@ class Bench:
         }
         self.cfg = parse_config(raw, cal_path.parent)
 
-    def run(self, name: str, virtual_s: float, warmup_s: float = 1.0) -> RunResult:
+    def run(
+        self, name: str, virtual_s: float, warmup_s: float = 1.0, paced: bool = False
+    ) -> RunResult:
         from imud.buses.i2c import I2CDevice
         from imud.calibration import load_calibration
         from imud.chips.mpu6050 import Mpu6050Config, Mpu6050Driver
@@ -225,8 +227,10 @@ class Bench:
         gen, step = st["sim gen"], st["step"]
         advance, perf, tcpu = sim.advance, time.perf_counter, time.thread_time
         gen_cpu = 0.0
+        pace = driver.poll_interval_ns / 1e9 if paced else 0.0
 
         w0, c0, t0 = perf(), time.process_time(), tcpu()
+        wake = w0
         for _ in range(steps):
             clock.advance(runner.next_due_ns - clock.now_ns())
             a, ac = perf(), tcpu()
@@ -237,6 +241,9 @@ class Bench:
             gen.seconds += b - a
             gen_cpu += bc - ac
             step.seconds += c - b
+            if pace:  # one poll per poll interval of real time, as the daemon does
+                wake += pace
+                time.sleep(max(0.0, wake - c))
         w1, c1, t1 = perf(), time.process_time(), tcpu()
 
         gen.calls = step.calls = steps
@@ -249,7 +256,9 @@ class Bench:
         produced = sim.samples_produced - p0
         res.unaccounted = produced - res.samples - res.lost - (len(sim.fifo) // 12 - f0)
         res.bytes_published -= by0
-        res.wall, res.cpu, res.thread_cpu = w1 - w0, c1 - c0, t1 - t0
+        # busy wall time: the loop minus any pacing sleeps (= the loop's wall time unpaced)
+        res.wall = gen.seconds + step.seconds if paced else w1 - w0
+        res.cpu, res.thread_cpu = c1 - c0, t1 - t0
         res.sim_gen_wall, res.sim_gen_cpu = gen.seconds, gen_cpu
         res.stages = st
         self.sent_samples += runner.samples
@@ -368,6 +377,7 @@ def report(results: list[RunResult], args: argparse.Namespace, poll_ns: int) -> 
         f" (~{n / max(1, r0.batches):.1f} samples/batch), {args.seconds:g} virtual s "
         f"= {n:,} samples/run, publisher: {args.publisher}"
         f"{' + subscriber process' if args.subscriber else ''}, {len(results)} run(s)"
+        f"{', paced at real time' if args.paced else ''}"
     )
     print()
     w = 42
@@ -431,6 +441,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--odr", type=float, default=1000.0, help="MPU6050 output data rate, Hz")
     p.add_argument("--batch-ms", type=float, default=None, help="poll interval override, ms")
     p.add_argument("--repeat", type=int, default=5, help="timed runs (median and range reported)")
+    p.add_argument(
+        "--paced",
+        action="store_true",
+        help="sleep between polls so that they come at the real poll rate, as in the daemon "
+        "(runs take --seconds of real time; figures are per busy second)",
+    )
     p.add_argument("--publisher", choices=("zenoh", "null"), default="zenoh")
     p.add_argument("--subscriber", action="store_true", help="count bytes in a second process")
     p.add_argument("--port", type=int, default=None, help="Zenoh listen port (default: free)")
@@ -477,12 +493,14 @@ def main(argv: list[str] | None = None) -> int:
                 print("invalid device settings:", *e.messages, sep="\n  ", file=sys.stderr)
                 return 2
             bench.run("warmup", min(args.seconds, 5.0))  # imports, caches, Zenoh routes
-            results = [bench.run(f"run{i}", args.seconds) for i in range(args.repeat)]
+            results = [
+                bench.run(f"run{i}", args.seconds, paced=args.paced) for i in range(args.repeat)
+            ]
             report(results, args, results[0].poll_ns)
             if args.profile:
                 prof = cProfile.Profile()
                 prof.enable()
-                bench.run("profile", args.seconds)
+                bench.run("profile", args.seconds, paced=args.paced)
                 prof.disable()
                 out = io.StringIO()
                 pstats.Stats(prof, stream=out).sort_stats("tottime").print_stats(25)

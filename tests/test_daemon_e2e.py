@@ -56,7 +56,11 @@ calibration = "cal.toml"
 seed = 3
 truth = true
 motion = { kind = "still", roll_deg = 30.0 }
-errors = { ideal = true, accel_bias_mg = [40.0, -30.0, 20.0], gyro_bias_dps = [1.5, -2.0, 0.5], accel_scale_error = [0.02, -0.01, 0.015] }
+[device.sim.errors]
+ideal = true
+accel_bias_mg = [40.0, -30.0, 20.0]
+gyro_bias_dps = [1.5, -2.0, 0.5]
+accel_scale_error = [0.02, -0.01, 0.015]
 
 [[device]]
 name = "absent"
@@ -87,7 +91,7 @@ def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProc]:
     d = DaemonProc(tmp, CONFIG)
     d.wait_started()
     yield d
-    code, took = d.stop()
+    code, _took = d.stop()
     assert code == 0, d.log.read_text()
 
 
