@@ -423,13 +423,13 @@ def test_bad_zenoh_endpoint_rejected(tmp_path: Path, key: str, endpoint: str) ->
 def test_good_zenoh_endpoints_accepted(tmp_path: Path) -> None:
     text = (
         '[zenoh]\nmode = "client"\n'
-        'listen = ["tcp/0.0.0.0:7447", "udp/[::1]:7447"]\n'
+        'listen = ["tcp/127.0.0.2:7447", "udp/[::1]:7447"]\n'
         'connect = ["tcp/192.168.1.10:7447", "unixsock-stream//tmp/z.sock"]\n'
         'prefix = "robot1/imud"\n' + GOOD_DEVICE
     )
     cfg = load_text(tmp_path, text)
     assert cfg.zenoh.mode == "client"
-    assert cfg.zenoh.listen == ["tcp/0.0.0.0:7447", "udp/[::1]:7447"]
+    assert cfg.zenoh.listen == ["tcp/127.0.0.2:7447", "udp/[::1]:7447"]
     assert cfg.zenoh.connect[1] == "unixsock-stream//tmp/z.sock"
     assert cfg.zenoh.prefix == "robot1/imud"
 
