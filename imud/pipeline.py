@@ -54,7 +54,9 @@ class Pipeline:
         self.epoch_offset_ns = epoch_offset_ns
 
     def process(self, raw: RawBatch) -> SampleBatch:
-        st = self.clock.update(raw.n, raw.t_before_ns, raw.t_after_ns, raw.resync)
+        st = self.clock.update(
+            raw.n, raw.t_before_ns, raw.t_after_ns, raw.resync, restart=raw.restart_ns
+        )
         accel, gyro = calibrate(self.cal, *to_si(raw))
         flags = (FLAG_CALIBRATED if self.cal is not None else 0) | (
             FLAG_RESYNC if st.lost_before else 0

@@ -35,6 +35,7 @@ class SampleClock:
         self.k_last = -1  # index of the newest delivered sample
         self.last_ts: int | None = None
         self._pending_resync = False
+        self._pending_restart: tuple[int, int] | None = None
         self._rebase = False
         self._count = 0
         self._seg_n = 0
@@ -102,9 +103,27 @@ class SampleClock:
                 lo, hi = self._band(current)
         return (lo + hi) / 2.0
 
-    def _index_at(self, t_before: int, t_after: int) -> int:
-        mid = (t_before + t_after) / 2.0 - self._correction()
-        return math.floor((mid - self._t_ref - self._my) / self.period + self._k_ref + self._mk)
+    def _resync_index(
+        self, n: int, t_before: int, t_after: int, restart: tuple[int, int] | None
+    ) -> int:
+        """Index of the newest sample after a FIFO reset, from the fitted line.
+
+        The read alone places the new samples' phase only within a period. With the FIFO
+        re-enable instant too (its first sample is the first latched after it), the phase is
+        pinned twice as tightly, and the integer whose phase window sits closest to the line
+        is the right one unless the line itself is off by a quarter period."""
+        c = self._correction()
+        mid = (t_before + t_after) / 2.0 - c
+        k0 = math.floor((mid - self._t_ref - self._my) / self.period + self._k_ref + self._mk)
+        if restart is None:
+            return k0
+
+        def off_line(k: int) -> float:
+            rows = np.array([[k, t_before, t_after], [k - n, restart[0], restart[1]]], float)
+            lo, hi = self._band(rows)
+            return abs((lo + hi) / 2.0 - c)
+
+        return min((k0 - 1, k0, k0 + 1), key=off_line)
 
     def rebase(self) -> None:
         """The chip was reinitialised: its sample grid restarted. Keep counting from the gap."""
@@ -116,15 +135,28 @@ class SampleClock:
         self._rebase = True
         self._pending_resync = False
 
-    def update(self, n: int, t_before: int, t_after: int, resync: bool = False) -> Stamped:
-        """Stamp a batch of `n` samples whose newest was latched between the two host times."""
+    def update(
+        self,
+        n: int,
+        t_before: int,
+        t_after: int,
+        resync: bool = False,
+        restart: tuple[int, int] | None = None,
+    ) -> Stamped:
+        """Stamp a batch of `n` samples whose newest was latched between the two host times.
+
+        `resync`: the FIFO was reset since the last batch; `restart` brackets the instant it was
+        re-enabled, when the driver knows it."""
         resync = resync or self._pending_resync
+        restart = restart or self._pending_restart
         if n == 0:
             self._pending_resync = resync
+            self._pending_restart = restart if resync else None
             if not resync and not self._rebase and self.k_last >= 0:
                 self._observe(self.k_last, t_before, t_after)
             return Stamped(self.k_last + 1, 0, np.zeros(0, dtype=np.int64))
         self._pending_resync = False
+        self._pending_restart = None
         if self.k_last < 0:
             k_new = n - 1
         elif self._rebase:  # no fit yet on the new grid: count the gap at the nominal period
@@ -132,12 +164,16 @@ class SampleClock:
             k_new = self.k_last + max(n, round(gap))
             self._rebase = False
         elif resync:
-            k_new = max(self._index_at(t_before, t_after), self.k_last + n)
+            k_new = max(self._resync_index(n, t_before, t_after, restart), self.k_last + n)
         else:
             k_new = self.k_last + n
         first = k_new - n + 1
         lost = first - (self.k_last + 1) if self.k_last >= 0 else 0
-        self._observe(k_new, t_before, t_after, new_segment=resync)
+        if resync and restart is not None and self._count:
+            self._observe(first - 1, restart[0], restart[1], new_segment=True)
+            self._observe(k_new, t_before, t_after)
+        else:
+            self._observe(k_new, t_before, t_after, new_segment=resync)
         ks = np.arange(first, k_new + 1, dtype=np.float64)
         t = np.rint(np.asarray(self._line(ks)) + self._correction()).astype(np.int64)
         if self.last_ts is not None:  # strictly increasing across batches, whatever the fit did

@@ -49,7 +49,9 @@ class RawBatch:
 
     `t_before_ns`/`t_after_ns` bracket the instant the FIFO count was latched (host clock): the
     newest sample was produced no later than `t_after_ns`, and the one after it no earlier than
-    `t_before_ns`. `resync` says continuity with the previous batch is broken (FIFO was reset).
+    `t_before_ns`. `resync` says continuity with the previous batch is broken (FIFO was reset);
+    `restart_ns`, when known, brackets the write that re-enabled the FIFO: the first sample after
+    a resync is the first one the chip latched after that write.
     """
 
     accel: npt.NDArray[np.int32]  # (N, 3) counts
@@ -60,6 +62,7 @@ class RawBatch:
     t_before_ns: int
     t_after_ns: int
     resync: bool = False
+    restart_ns: tuple[int, int] | None = None
 
     @property
     def n(self) -> int:

@@ -180,6 +180,7 @@ class Mpu6050Driver:
         self._last_check_ns = 0
         self._need_reset = False
         self._resync = False
+        self._restart_ns: tuple[int, int] | None = None
 
     def _register_plan(self) -> list[tuple[int, int]]:
         c = self.cfg
@@ -239,7 +240,9 @@ class Mpu6050Driver:
         self.dev.write_u8(FIFO_EN, 0)
         self.dev.write_u8(USER_CTRL, USER_CTRL_FIFO_RESET)
         self.dev.write_u8(FIFO_EN, FIFO_EN_XG | FIFO_EN_YG | FIFO_EN_ZG | FIFO_EN_ACCEL)
+        t0 = self.clock.now_ns()
         self.dev.write_u8(USER_CTRL, USER_CTRL_FIFO_EN)
+        self._restart_ns = (t0, self.clock.now_ns())
         self.dev.read_u8(INT_STATUS)  # clear a stale overflow flag
         self.counters.fifo_resets += 1
         self._need_reset = False
@@ -262,6 +265,7 @@ class Mpu6050Driver:
             t_before,
             t_after,
             resync=resync,
+            restart_ns=self._restart_ns if resync else None,
         )
 
     def read(self) -> RawBatch:
