@@ -23,9 +23,10 @@ from imud import __version__
 from imud.buses.models import I2cBus, SimBus
 from imud.calibration import load_calibration
 from imud.chips import CHIPS
+from imud.chips.base import ChipSim, DeviceBase, Driver
 from imud.clock import Clock, MonotonicClock, epoch_offset_ns
 from imud.config import ImudConfig
-from imud.device import DeviceRunner, Publish
+from imud.device import RETRY_MAX_NS, RETRY_MIN_NS, DeviceRunner, Publish
 from imud.sdnotify import Notifier
 from imud.zsession import daemon_config
 
@@ -34,13 +35,41 @@ log = logging.getLogger("imud.daemon")
 STALL_NS = 10_000_000_000  # a bus worker silent this long is hung: stop petting the watchdog
 
 
+Connect = Callable[[Any], tuple[Driver, ChipSim | None]]
+
+
 @dataclass
 class BusWorker:
+    """Owns one bus: opens it (and reopens it with backoff while it will not open), then runs
+    its devices' start/poll steps in turn, sleeping until the next one is due."""
+
     key: str
     runners: list[DeviceRunner]
+    connectors: list[Connect]  # per runner: bus -> (driver, simulator or None)
+    opener: Callable[[], Any]
     clock: Clock
     stop: threading.Event = field(default_factory=threading.Event)
     heartbeat_ns: int = 0
+    bus: Any = None
+    _reopen_ns: int = 0
+    _backoff_ns: int = RETRY_MIN_NS
+
+    def _ensure_bus(self, now: int) -> bool:
+        if self.bus is not None:
+            return True
+        if now < self._reopen_ns:
+            return False
+        try:
+            self.bus = self.opener()
+        except OSError as e:
+            for r in self.runners:
+                r.bus_down(str(e), self._backoff_ns)
+            self._reopen_ns = now + self._backoff_ns
+            self._backoff_ns = min(2 * self._backoff_ns, RETRY_MAX_NS)
+            return False
+        for r, connect in zip(self.runners, self.connectors, strict=True):
+            r.attach(*connect(self.bus))
+        return True
 
     def run(self) -> None:
         """Blocking loop: poll whichever device is due next, sleep until the next is."""
@@ -50,6 +79,9 @@ class BusWorker:
             while not self.stop.is_set():
                 now = self.clock.now_ns()
                 self.heartbeat_ns = now
+                if not self._ensure_bus(now):
+                    self.stop.wait(min(self._reopen_ns - now, 1_000_000_000) / 1e9)
+                    continue
                 due = min(self.runners, key=lambda r: r.next_due_ns)
                 wait = due.next_due_ns - now
                 if wait > 0:  # wake at least once a second so the heartbeat stays fresh
@@ -78,55 +110,55 @@ def _make_publisher(session: zenoh.Session, key: str) -> tuple[Publish, zenoh.Pu
     return pub.put, pub
 
 
-def build_workers(
-    cfg: ImudConfig, session: zenoh.Session, clock: Clock, offset_ns: int
-) -> tuple[list[BusWorker], list[Any]]:
-    """Open every bus, create drivers (and simulators), one worker per bus. A bus that will not
-    open leaves its devices in `error` with the reason; the others still run."""
+def _opener(d: DeviceBase) -> Callable[[], Any]:
     from imud.buses.i2c import open_smbus
     from imud.sim.i2c import SimI2CBus
 
-    prefix = cfg.zenoh.prefix
-    groups: dict[str, list[DeviceRunner]] = {}
-    handles: dict[str, Any] = {}
-    keep: list[Any] = []
-    for d in cfg.device:
-        spec = CHIPS[d.chip]
-        key = d.bus.key
-        error: str | None = None
+    bus = d.bus
+    if isinstance(bus, SimBus):
+        return lambda: SimI2CBus(seed=d.sim.seed if d.sim else 0)
+    if isinstance(bus, I2cBus):
+        return lambda: open_smbus(bus)
+    raise ValueError(f"{bus.kind} buses arrive with the chips that use them")  # config forbids
+
+
+def _connector(d: DeviceBase, clock: Clock) -> Connect:
+    spec = CHIPS[d.chip]
+
+    def connect(bus: Any) -> tuple[Driver, ChipSim | None]:
         sim = None
-        if key not in handles:
-            try:
-                if isinstance(d.bus, SimBus):
-                    handles[key] = SimI2CBus(seed=d.sim.seed if d.sim else 0)
-                elif isinstance(d.bus, I2cBus):
-                    handles[key] = open_smbus(d.bus)
-                else:
-                    raise OSError(f"{d.bus.kind} buses arrive with the chips that use them")
-            except OSError as e:
-                handles[key] = None
-                error = str(e)
-        bus = handles[key]
-        if bus is None and error is None:
-            error = f"bus {key} could not be opened (see the first device on it)"
-        if isinstance(d.bus, SimBus) and bus is not None:
+        if isinstance(d.bus, SimBus):
             sim = spec.make_sim(d, clock)
             bus.attach(d.bus.address, sim, d.sim.nak_rate if d.sim else 0.0)
-        driver = spec.make_driver(d, bus, clock) if bus is not None else None
+        return spec.make_driver(d, bus, clock), sim
+
+    return connect
+
+
+def build_workers(
+    cfg: ImudConfig, session: zenoh.Session, clock: Clock, offset_ns: int
+) -> tuple[list[BusWorker], list[Any]]:
+    """One worker per bus, one runner and publisher per device. Buses open in their workers."""
+    prefix = cfg.zenoh.prefix
+    workers: dict[str, BusWorker] = {}
+    keep: list[Any] = []
+    for d in cfg.device:
         cal = load_calibration(d.calibration) if d.calibration else None
         put, pub = _make_publisher(session, f"{prefix}/{d.name}/imu")
         keep.append(pub)
         put_truth = None
-        if sim is not None and d.sim is not None and d.sim.truth:
+        if isinstance(d.bus, SimBus) and d.sim is not None and d.sim.truth:
             put_truth, tpub = _make_publisher(session, f"{prefix}/{d.name}/sim/truth")
             keep.append(tpub)
         runner = DeviceRunner(
-            d, driver, cal, put, offset_ns, sim=sim, publish_truth=put_truth, now_ns=clock.now_ns
+            d, None, cal, put, offset_ns, publish_truth=put_truth, now_ns=clock.now_ns
         )
-        if error is not None:
-            runner.last_error = error
-        groups.setdefault(key, []).append(runner)
-    return [BusWorker(k, rs, clock) for k, rs in groups.items()], keep
+        w = workers.get(d.bus.key)
+        if w is None:
+            w = workers[d.bus.key] = BusWorker(d.bus.key, [], [], _opener(d), clock)
+        w.runners.append(runner)
+        w.connectors.append(_connector(d, clock))
+    return list(workers.values()), keep
 
 
 class Daemon:

@@ -49,7 +49,7 @@ class DeviceRunner:
         self.sim = sim
         self.epoch_offset_ns = epoch_offset_ns
         self.now_ns = now_ns
-        self.state = "starting" if driver is not None else "error"
+        self.state = "starting"
         self.last_error: str | None = None
         self.samples = 0
         self.lost_samples = 0
@@ -68,6 +68,23 @@ class DeviceRunner:
         self._sclock: SampleClock | None = None
 
     # --- lifecycle --------------------------------------------------------------------------
+    def attach(self, driver: Driver, sim: ChipSim | None = None) -> None:
+        """The bus is open: start this device on it at once."""
+        self.driver, self.sim = driver, sim
+        self.state = "starting"
+        self.next_due_ns = 0
+
+    def bus_down(self, msg: str, retry_ns: int) -> None:
+        """The bus will not open; the worker retries it every `retry_ns`."""
+        if self.last_error != msg:
+            log.error("%s: %s; retrying in %.1f s", self.cfg.name, msg, retry_ns / 1e9)
+        self.state, self.last_error = "error", msg
+        self._idle()
+
+    def _idle(self) -> None:
+        self.measured_rate_hz = 0.0
+        self._rate_window.clear()
+
     def _fail(self, msg: str, now: int) -> None:
         if self.state != "error" or self.last_error != msg:
             log.error("%s: %s; retrying in %.1f s", self.cfg.name, msg, self._retry_ns / 1e9)
@@ -75,6 +92,7 @@ class DeviceRunner:
         self.last_error = msg
         self.next_due_ns = now + self._retry_ns
         self._retry_ns = min(self._retry_ns * 2, RETRY_MAX_NS)
+        self._idle()
 
     def _start(self, now: int) -> None:
         """Advance the driver's start sequence by one step; the bus is free between steps."""
