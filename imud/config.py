@@ -68,6 +68,11 @@ class ImudConfig(BaseModel):
         names: dict[str, int] = {}
         slots: dict[tuple[str, int], str] = {}
         for i, d in enumerate(self.device):
+            if d.name == "daemon":
+                raise ValueError(
+                    f"device[{i}]: name 'daemon' is reserved (<prefix>/daemon/status is the "
+                    "daemon's own status); pick another name"
+                )
             if d.name in names:
                 raise ValueError(
                     f"device[{i}]: name {d.name!r} is already used by device[{names[d.name]}]; "

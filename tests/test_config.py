@@ -487,3 +487,9 @@ def test_mpu6050_on_spi_bus_rejected(tmp_path: Path) -> None:
     )
     msg = only_error(tmp_path, text)
     assert "spi" in msg and "i2c" in msg
+
+
+def test_device_named_daemon_is_reserved(tmp_path: Path) -> None:
+    text = '[[device]]\nname = "daemon"\nchip = "mpu6050"\nbus = { kind = "sim" }\n'
+    msg = only_error(tmp_path, text)
+    assert "reserved" in msg and "daemon/status" in msg
