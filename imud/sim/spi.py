@@ -1,0 +1,46 @@
+"""A simulated SPI chip select implementing the `spidev.SpiDev` subset the drivers use.
+
+SPI has no acknowledge, so a fault looks like a floating MISO line: the chip's answer reads as
+0xFF bytes. Drivers must notice from the data (headers, identity re-checks), as on silicon.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+from imud.chips.base import ChipSim
+
+
+class SimSpiDev:
+    def __init__(
+        self, chip: ChipSim, fault_rate: float = 0.0, seed: int = 0, dummy_bytes: int = 0
+    ) -> None:
+        self.chip = chip
+        self.fault_rate = fault_rate
+        self.dummy = dummy_bytes  # bytes the chip clocks out before register data on reads
+        self.mode = 0
+        self.max_speed_hz = 1_000_000
+        self._rng = np.random.default_rng([seed, 0x5B1])
+        self._lock = threading.Lock()
+        self.transfers = 0
+
+    def xfer2(self, values: list[int]) -> list[int]:
+        if not values:
+            return []
+        with self._lock:
+            self.transfers += 1
+            first, rest = values[0], values[1:]
+            fault = self.fault_rate > 0 and self._rng.random() < self.fault_rate
+            if first & 0x80:  # read: register data after the address byte (and dummies)
+                n = len(rest) - self.dummy
+                data = self.chip.read(first & 0x7F, max(n, 0))
+                rx = [0] * (1 + self.dummy) + list(data)
+                return [0xFF] * len(values) if fault else rx
+            if not fault:  # a write lost to a fault simply does not happen
+                self.chip.write(first & 0x7F, bytes(rest))
+            return [0] * len(values)
+
+    def close(self) -> None:
+        pass
