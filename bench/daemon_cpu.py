@@ -38,7 +38,6 @@ import sys
 import tempfile
 import threading
 import time
-from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -121,9 +120,10 @@ def _stat_fields(text: str) -> tuple[str, list[str]]:
     return text[lp + 1 : rp], text[rp + 2 :].split()
 
 
-def cpu_ticks(pid: int) -> int:
+def cpu_ticks(pid: int) -> tuple[int, int]:
+    """(utime, stime) of the whole process, all threads: fields 14 and 15 of proc(5)."""
     _, f = _stat_fields(Path(f"/proc/{pid}/stat").read_text())
-    return int(f[11]) + int(f[12])  # utime, stime (fields 14 and 15 of proc(5))
+    return int(f[11]), int(f[12])
 
 
 def thread_ticks(pid: int) -> dict[int, tuple[str, int]]:
@@ -220,7 +220,7 @@ def subscribe(session: Any, device: str, c: SubCount, stop: threading.Event) -> 
 @dataclass
 class Snapshot:
     wall: float
-    ticks: int
+    ticks: tuple[int, int]  # utime, stime
     threads: dict[int, tuple[str, int]]
     status: dict[str, Any]
     sub: dict[str, int]
@@ -249,6 +249,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--no-calibration", action="store_true", help="no calibration files")
     p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
     args = p.parse_args(argv)
+    if args.devices < 1:
+        p.error("--devices must be at least 1")
     if not 1 <= args.per_bus <= 16:
         p.error("--per-bus must be 1..16 (addresses 0x68.. on one bus)")
     return args
@@ -303,7 +305,8 @@ def run(
     try:
         ready_s = wait_ready(proc, imud, endpoint, args.devices, timeout=60)
     except RuntimeError as e:
-        print(f"error: {e}; daemon log:\n{log_path.read_text()}", file=sys.stderr)
+        tail = "\n".join(log_path.read_text(errors="replace").splitlines()[-40:])
+        print(f"error: {e}; end of the daemon log:\n{tail}", file=sys.stderr)
         return 1
     subs = {n: SubCount() for n in names} if args.subscribe else {}
     stop = threading.Event()
@@ -333,7 +336,7 @@ def run(
         stop.set()
         for t in threads:
             t.join(timeout=5)
-    report(args, a, b, st, ready_s, code, exit_s, subs, bench_cpu)
+    report(args, proc.pid, a, b, st, ready_s, code, exit_s, subs, bench_cpu)
     log = log_path.read_text(errors="replace").splitlines()
     odd = [ln for ln in log if re.search(r"\b(WARNING|ERROR|CRITICAL)\b|Traceback", ln)]
     print(f"\ndaemon log: {len(log)} lines, {len(odd)} warning/error lines")
@@ -344,6 +347,7 @@ def run(
 
 def report(
     args: argparse.Namespace,
+    pid: int,
     a: Snapshot,
     b: Snapshot,
     st: dict[str, str],
@@ -354,7 +358,9 @@ def report(
     bench_cpu: float,
 ) -> None:
     wall = b.wall - a.wall
-    cpu_s = (b.ticks - a.ticks) / CLK_TCK
+    user_s = (b.ticks[0] - a.ticks[0]) / CLK_TCK
+    sys_s = (b.ticks[1] - a.ticks[1]) / CLK_TCK
+    cpu_s = user_s + sys_s
     up = b.status["uptime_s"] - a.status["uptime_s"]
     da = {d["name"]: d for d in a.status["devices"]}
     db = {d["name"]: d for d in b.status["devices"]}
@@ -371,6 +377,7 @@ def report(
     rows = [
         ("ready after (start -> all running)", f"{ready_s:.2f} s"),
         ("CPU, utime+stime (all threads)", f"{cpu_s:.2f} s = {cpu_s / wall * 100:.1f} % of a core"),
+        ("  of which utime / stime", f"{user_s:.2f} s / {sys_s:.2f} s"),
         ("CPU per delivered sample", f"{cpu_s / max(1, samples) * 1e6:.1f} µs"),
         ("RSS / peak RSS (VmRSS / VmHWM)", f"{kib(st['VmRSS']):.1f} / {kib(st['VmHWM']):.1f} MiB"),
         ("threads", st.get("Threads", "?")),
@@ -405,13 +412,20 @@ def report(
             f"  {n:<8} {d['measured_rate_hz']:>17.1f} {d['chip_rate_hz'] or 0:>13.1f} "
             f"{d['samples'] - da[n]['samples']:>9} {d['lost_samples'] - da[n]['lost_samples']:>6}"
         )
-    by_comm: dict[str, int] = defaultdict(int)
+    print(
+        "\n  CPU by thread, % of a core (Python threads all carry the process name; the main "
+        "thread runs the event loop, the busiest others are the bus workers):"
+    )
+    busy = []
     for tid, (comm, ticks) in b.threads.items():
-        by_comm[re.sub(r"\d+$", "N", comm)] += ticks - a.threads.get(tid, (comm, 0))[1]
-    print("\n  CPU by thread name (N = any number), % of a core:")
-    for comm, ticks in sorted(by_comm.items(), key=lambda kv: -kv[1]):
-        if ticks:
-            print(f"    {comm:<16} {ticks / CLK_TCK / wall * 100:5.1f} %")
+        d_ticks = ticks - a.threads.get(tid, (comm, 0))[1]
+        if d_ticks:
+            busy.append((d_ticks, tid, comm))
+    for d_ticks, tid, comm in sorted(busy, reverse=True):
+        role = " (main)" if tid == pid else ""
+        print(f"    {tid:>8} {comm + role:<16} {d_ticks / CLK_TCK / wall * 100:5.1f} %")
+    idle = len(b.threads) - len(busy)
+    print(f"    ({idle} other thread(s) used no measurable CPU)")
 
 
 def _totals(db: dict[str, Any]) -> str:

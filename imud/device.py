@@ -18,7 +18,7 @@ from imud.chips.base import ChipSim, DeviceBase, Driver
 from imud.errors import BusError, DeviceIdentityError, RegisterMismatch
 from imud.pipeline import Pipeline
 from imud.timestamps import SampleClock
-from imud.wire import KIND_TRUTH, encode
+from imud.wire import FLAG_RESYNC, KIND_TRUTH, encode
 
 log = logging.getLogger("imud.device")
 
@@ -65,6 +65,9 @@ class DeviceRunner:
         self.pipeline: Pipeline | None = None
         self._starting: Iterator[int] | None = None
         self._phase = 0.0
+        self._unpublished_lost = 0
+        self._loss_unlogged = 0
+        self._loss_logged_ns = -(10**12)
         self._sclock: SampleClock | None = None
 
     # --- lifecycle --------------------------------------------------------------------------
@@ -167,7 +170,8 @@ class DeviceRunner:
         self._failures = max(0, self._failures - 1)
         assert self.pipeline is not None
         batch = self.pipeline.process(raw)
-        self.lost_samples += batch.lost_before
+        if batch.lost_before:
+            self._note_loss(batch.lost_before, now)
         if batch.n:
             self.publish(
                 encode(
@@ -177,15 +181,35 @@ class DeviceRunner:
                     batch.accel,
                     batch.gyro,
                     batch.temperature_c,
-                    flags=batch.flags,
-                    lost_before=batch.lost_before,
+                    flags=batch.flags | (FLAG_RESYNC if self._unpublished_lost else 0),
+                    lost_before=self._unpublished_lost,
                 )
             )
+            self._unpublished_lost = 0
             self.samples += batch.n
             self.batches += 1
             self.temperature_c = float(batch.temperature_c[-1])
         self._publish_truth()
         self._update_rate(now)
+
+    def _note_loss(self, lost: int, now: int) -> None:
+        """Count lost samples, carry them to the next published batch, and say so in the log
+        (at most every 10 s per device, with what was lost meanwhile)."""
+        self.lost_samples += lost
+        self._unpublished_lost += lost
+        self._loss_unlogged += lost
+        if now - self._loss_logged_ns >= 10_000_000_000:
+            c = self.driver.counters if self.driver is not None else None
+            log.warning(
+                "%s: %d samples lost since the last report (%d in all; FIFO overflows %d, "
+                "bus errors %d)",
+                self.cfg.name,
+                self._loss_unlogged,
+                self.lost_samples,
+                c.fifo_overflows if c else 0,
+                self.bus_errors,
+            )
+            self._loss_unlogged, self._loss_logged_ns = 0, now
 
     def _poll_delay(self) -> int:
         """Poll interval plus a golden-ratio fraction of a sample period: read instants then

@@ -46,6 +46,8 @@ class SampleClock:
         self._vk = 0.0
         self._cky = 0.0
         self._recent: deque[tuple[int, int, int, int]] = deque(maxlen=recent)
+        self._history: deque[tuple[int, int, int, int]] = deque(maxlen=memory_reads)
+        self._bounds = (1.0, 0.0)  # (lo, hi) on the period; lo > hi means "none yet"
         self._segment = 0
 
     @property
@@ -75,12 +77,32 @@ class SampleClock:
         self._my += alpha * dy
         self._vk = forget * self._vk + (1 - alpha) * dx * dx
         self._cky = forget * self._cky + (1 - alpha) * dx * dy
+        self._recent.append((k, t_before, t_after, self._segment))
+        self._history.append((k, t_before, t_after, self._segment))
+        if self._count % 8 == 0:
+            self._bounds = self._slope_bounds()
         if self._count >= 3 and self._vk > 4.0:
             p = self._cky / self._vk
+            lo, hi = self._bounds
+            if lo <= hi:  # the reads' hard bounds beat the midpoint fit's statistics
+                p = min(max(p, lo), hi)
             # a chip is off by a few percent at most: anything else is a bad fit, keep the old
             if 0.9 * self.nominal < p < 1.1 * self.nominal:
                 self.period = p
-        self._recent.append((k, t_before, t_after, self._segment))
+
+    def _slope_bounds(self, edge: int = 16) -> tuple[float, float]:
+        """The periods every pair of an early and a late read (same segment) allows:
+        t_k <= t_after and t_(k+1) > t_before for both bound the period from both sides."""
+        rows = np.asarray(self._history, dtype=np.float64)
+        rows = rows[rows[:, 3] == self._segment]
+        if len(rows) < 2 * edge:
+            return (1.0, 0.0)
+        e, late = rows[:edge, None, :], rows[None, -edge:, :]
+        dk = late[..., 0] - e[..., 0]
+        lo = np.max((late[..., 1] - e[..., 2]) / (dk + 1))
+        with np.errstate(divide="ignore"):
+            hi = np.min(np.where(dk > 1, (late[..., 2] - e[..., 1]) / (dk - 1), np.inf))
+        return float(lo), float(hi)
 
     def _band(self, rows: npt.NDArray[np.float64]) -> tuple[float, float]:
         k, tb, ta = rows[:, 0], rows[:, 1], rows[:, 2]
@@ -132,6 +154,8 @@ class SampleClock:
         self._vk = self._cky = self._mk = self._my = 0.0
         self.period = self.nominal
         self._recent.clear()
+        self._history.clear()
+        self._bounds = (1.0, 0.0)
         self._rebase = True
         self._pending_resync = False
 
@@ -154,7 +178,18 @@ class SampleClock:
             self._pending_restart = restart if resync else None
             if not resync and not self._rebase and self.k_last >= 0:
                 self._observe(self.k_last, t_before, t_after)
-            return Stamped(self.k_last + 1, 0, np.zeros(0, dtype=np.int64))
+            lost = 0
+            if resync and restart is not None and self._count and not self._rebase:
+                # everything latched before the FIFO was emptied is gone: count it now, so a
+                # FIFO that overflows read after read shows its losses as they happen
+                k_gone = math.floor(
+                    (restart[0] - self._correction() - self._t_ref - self._my) / self.period
+                    + self._k_ref
+                    + self._mk
+                )
+                if k_gone > self.k_last:
+                    lost, self.k_last = k_gone - self.k_last, k_gone
+            return Stamped(self.k_last + 1, lost, np.zeros(0, dtype=np.int64))
         self._pending_resync = False
         self._pending_restart = None
         if self.k_last < 0:

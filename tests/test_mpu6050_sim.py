@@ -195,3 +195,28 @@ def test_absent_chip_reports_error_and_keeps_retrying() -> None:
     assert rig.runner.state == "error"
     assert rig.runner.last_error is not None and "0x68" in rig.runner.last_error
     assert rig.bus.transfers >= 4  # it retried with backoff rather than giving up
+
+
+def test_sustained_overflow_counts_losses_as_they_happen(caplog: pytest.LogCaptureFixture) -> None:
+    rig = make_rig({"odr_hz": 1000}, _ideal(seed=15, clock_error=0.005))
+    rig.run(10.0)  # long enough for the chip-clock fit to extrapolate 3 s blind to < 1 sample
+    delivered_before = rig.runner.samples
+    rig.driver.poll_interval_ns = 100_000_000  # longer than the FIFO lasts (85 samples)
+    with caplog.at_level("WARNING", logger="imud.device"):
+        rig.run(3.0)
+    assert rig.driver.counters.fifo_overflows >= 25
+    # nothing got through but the poll already scheduled at the old interval...
+    assert rig.runner.samples - delivered_before <= 30
+    # ...and yet every sample the chip produced meanwhile is already counted as lost
+    assert rig.runner.lost_samples == pytest.approx(3.0 * 1005, abs=120)
+    assert any("samples lost" in r.getMessage() for r in caplog.records)
+    rig.driver.poll_interval_ns = 20_000_000
+    rig.run(2.0)
+    m = concat(rig.batches())
+    t = concat(rig.truth_batches())
+    i = match_truth(m, t)
+    assert len(np.unique(t["seq"][i] - m["seq"])) == 1  # the books still balance exactly
+    assert rig.runner.lost_samples == (np.diff(m["seq"]) - 1).sum()
+    late = rig.batches()[-100:]
+    assert sum(b.lost_before for b in rig.batches()) == rig.runner.lost_samples
+    assert late

@@ -52,6 +52,10 @@ class MotionModel:
         self._f0 = r0.T @ np.array([0.0, 0.0, G])
         rate = np.radians(motion.rate_dps) if isinstance(motion, TumbleMotion) else np.zeros(3)
         self._w = np.asarray(rate, dtype=np.float64)
+        speed = float(np.linalg.norm(self._w))
+        u = self._w / speed if speed else self._w
+        self._uxv = np.cross(u, self._f0)  # Rodrigues terms, constant for a constant rate
+        self._uuv = u * float(u @ self._f0)
 
     def sample(self, t_s: F64) -> tuple[F64, F64]:
         n = t_s.shape[0]
@@ -60,11 +64,8 @@ class MotionModel:
         if speed == 0.0:
             return np.broadcast_to(self._f0, (n, 3)).copy(), w
         # A world-fixed vector seen from a body turning at w rotates by -|w| t about w (Rodrigues)
-        u = self._w / speed
-        v = self._f0
         a = -speed * t_s[:, None]
-        f = v * np.cos(a) + np.cross(u, v) * np.sin(a) + u * float(u @ v) * (1 - np.cos(a))
-        return f, w
+        return self._f0 * np.cos(a) + self._uxv * np.sin(a) + self._uuv * (1 - np.cos(a)), w
 
 
 class TemperatureModel:
