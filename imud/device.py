@@ -12,6 +12,9 @@ from collections import deque
 from collections.abc import Callable, Iterator
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
+
 from imud.buses.models import describe
 from imud.calibration import Calibration
 from imud.chips.base import ChipSim, DeviceBase, Driver
@@ -26,6 +29,14 @@ Publish = Callable[[bytes], None]
 MAX_CONSECUTIVE_FAILURES = 10
 RETRY_MIN_NS = 500_000_000
 RETRY_MAX_NS = 30_000_000_000
+
+
+def _valid_runs(valid: npt.NDArray[np.bool_] | None, n: int) -> list[tuple[int, int]]:
+    """[start, end) of each run of valid samples; the whole batch when there is no mask."""
+    if valid is None:
+        return [(0, n)] if n else []
+    edges = np.flatnonzero(np.diff(np.concatenate(([False], valid, [False])).astype(np.int8)))
+    return list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
 class DeviceRunner:
@@ -66,6 +77,7 @@ class DeviceRunner:
         self._starting: Iterator[int] | None = None
         self._phase = 0.0
         self._unpublished_lost = 0
+        self._run_end = 0  # end of the last published run within the current batch
         self._loss_unlogged = 0
         self._loss_logged_ns = -(10**12)
         self._sclock: SampleClock | None = None
@@ -172,23 +184,29 @@ class DeviceRunner:
         batch = self.pipeline.process(raw)
         if batch.lost_before:
             self._note_loss(batch.lost_before, now)
-        if batch.n:
+        for start, end in _valid_runs(batch.valid, batch.n):
+            if start:  # samples the chip marked invalid are holes in the stream: lost
+                self._note_loss(start - self._run_end, now)
             self.publish(
                 encode(
                     self.cfg.name,
-                    batch.first_seq,
-                    batch.t_ns,
-                    batch.accel,
-                    batch.gyro,
-                    batch.temperature_c,
+                    batch.first_seq + start,
+                    batch.t_ns[start:end],
+                    batch.accel[start:end],
+                    batch.gyro[start:end],
+                    batch.temperature_c[start:end],
                     flags=batch.flags | (FLAG_RESYNC if self._unpublished_lost else 0),
                     lost_before=self._unpublished_lost,
                 )
             )
             self._unpublished_lost = 0
-            self.samples += batch.n
+            self._run_end = end
+            self.samples += end - start
             self.batches += 1
-            self.temperature_c = float(batch.temperature_c[-1])
+            self.temperature_c = float(batch.temperature_c[end - 1])
+        if batch.n and self._run_end < batch.n:
+            self._note_loss(batch.n - self._run_end, now)
+        self._run_end = 0
         self._publish_truth()
         self._update_rate(now)
 

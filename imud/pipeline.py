@@ -39,6 +39,7 @@ class SampleBatch:
     accel: F64
     gyro: F64
     temperature_c: F64
+    valid: npt.NDArray[np.bool_] | None = None
 
     @property
     def n(self) -> int:
@@ -55,7 +56,12 @@ class Pipeline:
 
     def process(self, raw: RawBatch) -> SampleBatch:
         st = self.clock.update(
-            raw.n, raw.t_before_ns, raw.t_after_ns, raw.resync, restart=raw.restart_ns
+            raw.n,
+            raw.t_before_ns,
+            raw.t_after_ns,
+            raw.resync,
+            restart=raw.restart_ns,
+            full=raw.fifo_full,
         )
         accel, gyro = calibrate(self.cal, *to_si(raw))
         flags = (FLAG_CALIBRATED if self.cal is not None else 0) | (
@@ -69,4 +75,5 @@ class Pipeline:
             accel,
             gyro,
             raw.temperature_c,
+            raw.valid,
         )

@@ -125,6 +125,12 @@ class SampleClock:
                 lo, hi = self._band(current)
         return (lo + hi) / 2.0
 
+    def _index_before(self, t: float) -> int:
+        """Index of the newest sample the fitted line puts at or before host time `t`."""
+        return math.floor(
+            (t - self._correction() - self._t_ref - self._my) / self.period + self._k_ref + self._mk
+        )
+
     def _resync_index(
         self, n: int, t_before: int, t_after: int, restart: tuple[int, int] | None
     ) -> int:
@@ -166,11 +172,14 @@ class SampleClock:
         t_after: int,
         resync: bool = False,
         restart: tuple[int, int] | None = None,
+        full: bool = False,
     ) -> Stamped:
         """Stamp a batch of `n` samples whose newest was latched between the two host times.
 
         `resync`: the FIFO was reset since the last batch; `restart` brackets the instant it was
-        re-enabled, when the driver knows it."""
+        re-enabled, when the driver knows it. `full`: a stop-on-full FIFO filled up, so its newest
+        sample is not the one latched just before the read: the batch continues the stream but
+        says nothing about the clock's phase."""
         resync = resync or self._pending_resync
         restart = restart or self._pending_restart
         if n == 0:
@@ -182,11 +191,7 @@ class SampleClock:
             if resync and restart is not None and self._count and not self._rebase:
                 # everything latched before the FIFO was emptied is gone: count it now, so a
                 # FIFO that overflows read after read shows its losses as they happen
-                k_gone = math.floor(
-                    (restart[0] - self._correction() - self._t_ref - self._my) / self.period
-                    + self._k_ref
-                    + self._mk
-                )
+                k_gone = self._index_before(restart[0])
                 if k_gone > self.k_last:
                     lost, self.k_last = k_gone - self.k_last, k_gone
             return Stamped(self.k_last + 1, lost, np.zeros(0, dtype=np.int64))
@@ -198,6 +203,8 @@ class SampleClock:
             gap = ((t_before + t_after) / 2.0 - (self.last_ts or 0)) / self.period
             k_new = self.k_last + max(n, round(gap))
             self._rebase = False
+        elif resync and full and restart is not None:  # only the restart instant says where
+            k_new = max(self._index_before(restart[0]) + n, self.k_last + n)
         elif resync:
             k_new = max(self._resync_index(n, t_before, t_after, restart), self.k_last + n)
         else:
@@ -206,8 +213,9 @@ class SampleClock:
         lost = first - (self.k_last + 1) if self.k_last >= 0 else 0
         if resync and restart is not None and self._count:
             self._observe(first - 1, restart[0], restart[1], new_segment=True)
-            self._observe(k_new, t_before, t_after)
-        else:
+            if not full:
+                self._observe(k_new, t_before, t_after)
+        elif not full or self._count == 0:
             self._observe(k_new, t_before, t_after, new_segment=resync)
         ks = np.arange(first, k_new + 1, dtype=np.float64)
         t = np.rint(np.asarray(self._line(ks)) + self._correction()).astype(np.int64)

@@ -51,7 +51,8 @@ class RawBatch:
     newest sample was produced no later than `t_after_ns`, and the one after it no earlier than
     `t_before_ns`. `resync` says continuity with the previous batch is broken (FIFO was reset);
     `restart_ns`, when known, brackets the write that re-enabled the FIFO: the first sample after
-    a resync is the first one the chip latched after that write.
+    a resync is the first one the chip latched after that write. For a stop-on-full FIFO that
+    filled up, `fifo_full` is set and `restart_ns` brackets the read that made room again.
     """
 
     accel: npt.NDArray[np.int32]  # (N, 3) counts
@@ -63,6 +64,10 @@ class RawBatch:
     t_after_ns: int
     resync: bool = False
     restart_ns: tuple[int, int] | None = None
+    # per-sample: False where the chip marked a sample invalid (it becomes a counted hole)
+    valid: npt.NDArray[np.bool_] | None = None
+    # the FIFO was full: its newest sample is older than the read, and samples after it dropped
+    fifo_full: bool = False
 
     @property
     def n(self) -> int:
