@@ -6,20 +6,12 @@ the same model runs in real time (daemon) or at virtual time (tests, benchmarks)
 
 from __future__ import annotations
 
-import math
-from typing import Any
-
 import numpy as np
 
 from imud.chips import mpu6050 as r
 from imud.clock import Clock
-from imud.sim.physics import (
-    ChipFigures,
-    ErrorModel,
-    MotionModel,
-    TemperatureModel,
-    quantise,
-)
+from imud.sim.chip import SampledChip
+from imud.sim.physics import ChipFigures, quantise
 from imud.sim.settings import SimSettings
 
 # Datasheet figures (seed-facts.md); bias and drift sigmas are typical turn-on spreads, moderated
@@ -37,7 +29,6 @@ FIGURES = ChipFigures(
 )
 
 RESET_BUSY_NS = 20_000_000  # the chip ignores the bus while it reloads after DEVICE_RESET
-CHUNK = 50_000
 _WRITABLE = {
     r.SMPLRT_DIV,
     r.CONFIG,
@@ -56,18 +47,9 @@ class ResetInProgress(OSError):
     pass
 
 
-class Mpu6050Sim:
+class Mpu6050Sim(SampledChip):
     def __init__(self, settings: SimSettings, clock: Clock) -> None:
-        self.settings = settings
-        self.clock = clock
-        self.t_origin_ns = clock.now_ns()  # physics time zero
-        self.motion = MotionModel(settings.motion)
-        self.temp = TemperatureModel(settings)
-        self.errors = ErrorModel(FIGURES, settings)
-        self.clock_error = self.errors.clock_error
-        self.record_truth = settings.truth
-        self._truth: list[dict[str, Any]] = []
-        self.samples_produced = 0  # chip samples since power-on (truth index)
+        super().__init__(settings, clock, FIGURES)
         self.fifo_bytes_dropped = 0
         self._power_on_reset()
 
@@ -79,17 +61,12 @@ class Mpu6050Sim:
         self.fifo = bytearray()
         self.last_fifo_byte = 0
         self.int_status = 0
-        self.active = False
+        self.sampling = False
         self.busy_until_ns = 0
         self.latest_accel = np.zeros(3, dtype=np.int32)
         self.latest_gyro = np.zeros(3, dtype=np.int32)
         self._accel_hold: tuple[int, np.ndarray] | None = None
         self._anchor(self.clock.now_ns())
-
-    def _anchor(self, now: int) -> None:
-        """Restart the sample grid: the next sample comes one period after `now`."""
-        self.grid_origin_ns = float(now)
-        self.next_k = 1
 
     @property
     def dlpf_cfg(self) -> int:
@@ -112,29 +89,8 @@ class Mpu6050Sim:
     def gyro_lsb(self) -> float:
         return r.gyro_scale_rads(r.GYRO_RANGES_DPS[(self.regs[r.GYRO_CONFIG] >> 3) & 3])
 
-    def true_temperature(self, now_ns: int | None = None) -> float:
-        t = (self.clock.now_ns() if now_ns is None else now_ns) - self.t_origin_ns
-        return float(self.temp.at(np.array([t / 1e9]))[0])
-
     # --- sampling -------------------------------------------------------------------------
-    def advance(self) -> None:
-        now = self.clock.now_ns()
-        if not self.active:
-            return
-        period = 1e9 / self.rate_hz
-        k_max = math.floor((now - self.grid_origin_ns) / period)
-        while self.next_k <= k_max:
-            k_end = min(k_max, self.next_k + CHUNK - 1)
-            ks = np.arange(self.next_k, k_end + 1, dtype=np.float64)
-            self._produce(np.floor(self.grid_origin_ns + ks * period).astype(np.int64))
-            self.next_k = k_end + 1
-
-    def _produce(self, t_ns: np.ndarray) -> None:
-        n = t_ns.shape[0]
-        t_s = (t_ns - self.t_origin_ns) / 1e9
-        f, w = self.motion.sample(t_s)
-        temp = self.temp.at(t_s)
-        fm, wm = self.errors.apply(t_s, f, w, temp, self.rate_hz)
+    def _emit(self, t_ns: np.ndarray, fm: np.ndarray, wm: np.ndarray, temp: np.ndarray) -> None:
         if self.internal_hz == 8000.0:
             fm = self._hold_accel_1khz(t_ns, fm)
         acc = quantise(fm, self.accel_lsb)
@@ -144,13 +100,6 @@ class Mpu6050Sim:
         self.int_status |= r.INT_DATA_RDY
         if self.regs[r.USER_CTRL] & r.USER_CTRL_FIFO_EN and self.regs[r.FIFO_EN]:
             self._push_fifo(acc, gyr, temp)
-        if self.record_truth:
-            self._truth.append(
-                {"index": self.samples_produced, "t_ns": t_ns, "accel": f, "gyro": w, "temp": temp}
-            )
-            if len(self._truth) > 10_000:  # nobody drains: keep the newest
-                del self._truth[:5_000]
-        self.samples_produced += n
 
     def _hold_accel_1khz(self, t_ns: np.ndarray, fm: np.ndarray) -> np.ndarray:
         """With the DLPF off the gyro runs at 8 kHz but the accel at 1 kHz: hold accel values."""
@@ -228,10 +177,10 @@ class Mpu6050Sim:
                 self._power_on_reset()
                 self.busy_until_ns = now + RESET_BUSY_NS
                 return
-            was_active = self.active
+            was_active = self.sampling
             self.regs[reg] = value
-            self.active = not value & r.PWR1_SLEEP
-            if self.active and not was_active:
+            self.sampling = not value & r.PWR1_SLEEP
+            if self.sampling and not was_active:
                 self._anchor(now)
             return
         if reg == r.USER_CTRL:
@@ -243,15 +192,3 @@ class Mpu6050Sim:
         self.regs[reg] = value
         if reg in (r.SMPLRT_DIV, r.CONFIG) and old != value:
             self._anchor(now)
-
-    def drain_truth(self) -> dict[str, Any] | None:
-        if not self._truth:
-            return None
-        parts, self._truth = self._truth, []
-        return {
-            "index": parts[0]["index"],
-            "t_ns": np.concatenate([p["t_ns"] for p in parts]),
-            "accel": np.concatenate([p["accel"] for p in parts]),
-            "gyro": np.concatenate([p["gyro"] for p in parts]),
-            "temp": np.concatenate([p["temp"] for p in parts]),
-        }

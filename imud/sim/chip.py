@@ -1,0 +1,103 @@
+"""What every chip simulator shares: a sample grid driven by the chip's (imperfect) oscillator,
+lazy sample generation up to the clock's present, the physics, and the ground-truth record.
+
+A subclass says what its output rate is (from its registers) and what one chunk of samples does
+to its registers and FIFO (`_emit`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from imud.clock import Clock
+from imud.sim.physics import ChipFigures, ErrorModel, MotionModel, TemperatureModel
+from imud.sim.settings import SimSettings
+
+CHUNK = 50_000
+TRUTH_KEEP = 10_000  # truth chunks kept when nobody drains them
+
+
+class SampledChip:
+    def __init__(self, settings: SimSettings, clock: Clock, figures: ChipFigures) -> None:
+        self.settings = settings
+        self.clock = clock
+        self.t_origin_ns = clock.now_ns()  # physics time zero
+        self.motion = MotionModel(settings.motion)
+        self.temp = TemperatureModel(settings)
+        self.errors = ErrorModel(figures, settings)
+        self.clock_error = self.errors.clock_error
+        self.record_truth = settings.truth
+        self._truth: list[dict[str, Any]] = []
+        self.samples_produced = 0  # truth index: chip samples since the simulator was made
+        self.sampling = False
+        self._anchor(clock.now_ns())
+
+    # --- for subclasses ---------------------------------------------------------------------
+    @property
+    def rate_hz(self) -> float:
+        """True output rate (the configured rate, off by the oscillator error)."""
+        raise NotImplementedError
+
+    def _emit(
+        self,
+        t_ns: npt.NDArray[np.int64],
+        accel: npt.NDArray[np.float64],
+        gyro: npt.NDArray[np.float64],
+        temp_c: npt.NDArray[np.float64],
+    ) -> None:
+        """Measured samples (SI, with every sensor error) latched at `t_ns`: update registers
+        and FIFO."""
+        raise NotImplementedError
+
+    # --- shared -----------------------------------------------------------------------------
+    def _anchor(self, now: int) -> None:
+        """Restart the sample grid: the next sample comes one period after `now`."""
+        self.grid_origin_ns = float(now)
+        self.next_k = 1
+
+    def true_temperature(self, now_ns: int | None = None) -> float:
+        t = (self.clock.now_ns() if now_ns is None else now_ns) - self.t_origin_ns
+        return float(self.temp.at(np.array([t / 1e9]))[0])
+
+    def advance(self) -> None:
+        """Produce every sample due up to now, in chunks."""
+        if not self.sampling:
+            return
+        now = self.clock.now_ns()
+        period = 1e9 / self.rate_hz
+        k_max = math.floor((now - self.grid_origin_ns) / period)
+        while self.next_k <= k_max:
+            k_end = min(k_max, self.next_k + CHUNK - 1)
+            ks = np.arange(self.next_k, k_end + 1, dtype=np.float64)
+            self._produce(np.floor(self.grid_origin_ns + ks * period).astype(np.int64))
+            self.next_k = k_end + 1
+
+    def _produce(self, t_ns: npt.NDArray[np.int64]) -> None:
+        t_s = (t_ns - self.t_origin_ns) / 1e9
+        f, w = self.motion.sample(t_s)
+        temp = self.temp.at(t_s)
+        fm, wm = self.errors.apply(t_s, f, w, temp, self.rate_hz)
+        self._emit(t_ns, fm, wm, temp)
+        if self.record_truth:
+            self._truth.append(
+                {"index": self.samples_produced, "t_ns": t_ns, "accel": f, "gyro": w, "temp": temp}
+            )
+            if len(self._truth) > TRUTH_KEEP:
+                del self._truth[: TRUTH_KEEP // 2]
+        self.samples_produced += t_ns.shape[0]
+
+    def drain_truth(self) -> dict[str, Any] | None:
+        if not self._truth:
+            return None
+        parts, self._truth = self._truth, []
+        return {
+            "index": parts[0]["index"],
+            "t_ns": np.concatenate([p["t_ns"] for p in parts]),
+            "accel": np.concatenate([p["accel"] for p in parts]),
+            "gyro": np.concatenate([p["gyro"] for p in parts]),
+            "temp": np.concatenate([p["temp"] for p in parts]),
+        }
