@@ -66,7 +66,7 @@ class ImudConfig(BaseModel):
     @model_validator(mode="after")
     def _unique(self) -> ImudConfig:
         names: dict[str, int] = {}
-        slots: dict[tuple[str, int], str] = {}
+        slots: dict[tuple[str, ...], str] = {}
         for i, d in enumerate(self.device):
             if d.name == "daemon":
                 raise ValueError(
@@ -79,20 +79,18 @@ class ImudConfig(BaseModel):
                     "names must be unique"
                 )
             names[d.name] = i
-            addr = getattr(d.bus, "address", None)
-            if addr is not None:
-                slot = (d.bus.key, addr)
-                if slot in slots:
-                    raise ValueError(
-                        f"device[{i}] {d.name!r}: bus {d.bus.key} address 0x{addr:02x} is "
-                        f"already taken by {slots[slot]!r}"
-                    )
-                slots[slot] = d.name
-            transports = CHIPS[d.chip].transports
-            if not isinstance(d.bus, SimBus) and d.bus.kind not in transports:
+            slot = d.bus.slot
+            if slot in slots:
                 raise ValueError(
-                    f"device[{i}] {d.name!r}: a {d.chip} cannot be on a {d.bus.kind} bus; "
-                    f'it works over: {", ".join(transports)} (or kind = "sim")'
+                    f"device[{i}] {d.name!r}: {' '.join(slot)} is already taken by {slots[slot]!r}"
+                )
+            slots[slot] = d.name
+            transports = CHIPS[d.chip].transports
+            kind = d.bus.transport if isinstance(d.bus, SimBus) else d.bus.kind
+            if kind not in transports:
+                raise ValueError(
+                    f"device[{i}] {d.name!r}: a {d.chip} cannot be on a {kind} bus; "
+                    f"it works over: {', '.join(transports)}"
                 )
             if d.sim is not None and not isinstance(d.bus, SimBus):
                 raise ValueError(

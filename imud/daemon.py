@@ -20,7 +20,7 @@ import anyio
 import zenoh
 
 from imud import __version__
-from imud.buses.models import I2cBus, SimBus
+from imud.buses.models import I2cBus, SimBus, SpiBus
 from imud.calibration import load_calibration
 from imud.chips import CHIPS
 from imud.chips.base import ChipSim, DeviceBase, Driver
@@ -54,22 +54,33 @@ class BusWorker:
     _reopen_ns: int = 0
     _backoff_ns: int = RETRY_MIN_NS
 
+    def _retry_later(self, now: int) -> None:
+        self._reopen_ns = now + self._backoff_ns
+        self._backoff_ns = min(2 * self._backoff_ns, RETRY_MAX_NS)
+
     def _ensure_bus(self, now: int) -> bool:
-        if self.bus is not None:
-            return True
-        if now < self._reopen_ns:
-            return False
-        try:
-            self.bus = self.opener()
-        except OSError as e:
-            for r in self.runners:
-                r.bus_down(str(e), self._backoff_ns)
-            self._reopen_ns = now + self._backoff_ns
-            self._backoff_ns = min(2 * self._backoff_ns, RETRY_MAX_NS)
-            return False
-        for r, connect in zip(self.runners, self.connectors, strict=True):
-            r.attach(*connect(self.bus))
-        return True
+        """Open the bus, then connect each device not yet connected (an SPI device opens its
+        own chip select). Failures retry with backoff. True when some device can be served."""
+        pending = [i for i, r in enumerate(self.runners) if r.driver is None]
+        if pending and now >= self._reopen_ns:
+            if self.bus is None:
+                try:
+                    self.bus = self.opener()
+                except OSError as e:
+                    for r in self.runners:
+                        r.bus_down(str(e), self._backoff_ns)
+                    self._retry_later(now)
+                    return False
+            failed = False
+            for i in pending:
+                try:
+                    self.runners[i].attach(*self.connectors[i](self.bus))
+                except OSError as e:
+                    self.runners[i].bus_down(str(e), self._backoff_ns)
+                    failed = True
+            if failed:
+                self._retry_later(now)
+        return any(r.driver is not None for r in self.runners)
 
     def run(self) -> None:
         """Blocking loop: poll whichever device is due next, sleep until the next is."""
@@ -82,7 +93,16 @@ class BusWorker:
                 if not self._ensure_bus(now):
                     self.stop.wait(min(self._reopen_ns - now, 1_000_000_000) / 1e9)
                     continue
-                due = min(self.runners, key=lambda r: r.next_due_ns)
+                due = min(
+                    (r for r in self.runners if r.driver is not None),
+                    key=lambda r: r.next_due_ns,
+                )
+                if self._reopen_ns and due.next_due_ns > self._reopen_ns:
+                    due.next_due_ns = max(due.next_due_ns, now)  # wake for the retry too
+                    wait = min(due.next_due_ns, self._reopen_ns) - now
+                    if wait > 0:
+                        self.stop.wait(min(wait, 1_000_000_000) / 1e9)
+                        continue
                 wait = due.next_due_ns - now
                 if wait > 0:  # wake at least once a second so the heartbeat stays fresh
                     self.stop.wait(min(wait, 1_000_000_000) / 1e9)
@@ -110,27 +130,46 @@ def _make_publisher(session: zenoh.Session, key: str) -> tuple[Publish, zenoh.Pu
     return pub.put, pub
 
 
+class _ChipSelects:
+    """An SPI bus as a whole: nothing to open; each device opens its own chip select."""
+
+
 def _opener(d: DeviceBase) -> Callable[[], Any]:
     from imud.buses.i2c import open_smbus
     from imud.sim.i2c import SimI2CBus
 
     bus = d.bus
-    if isinstance(bus, SimBus):
+    if isinstance(bus, SimBus) and bus.transport == "i2c":
         return lambda: SimI2CBus(seed=d.sim.seed if d.sim else 0)
     if isinstance(bus, I2cBus):
         return lambda: open_smbus(bus)
+    if isinstance(bus, SpiBus | SimBus):
+        return _ChipSelects
     raise ValueError(f"{bus.kind} buses arrive with the chips that use them")  # config forbids
 
 
 def _connector(d: DeviceBase, clock: Clock) -> Connect:
+    """Device on an open bus -> (driver, simulator or None)."""
     spec = CHIPS[d.chip]
 
-    def connect(bus: Any) -> tuple[Driver, ChipSim | None]:
+    def connect(shared: Any) -> tuple[Driver, ChipSim | None]:
+        from imud.buses.spi import open_spidev
+        from imud.sim.spi import SimSpiDev
+
+        b = d.bus
         sim = None
-        if isinstance(d.bus, SimBus):
+        transport = shared
+        if isinstance(b, SimBus):
             sim = spec.make_sim(d, clock)
-            bus.attach(d.bus.address, sim, d.sim.nak_rate if d.sim else 0.0)
-        return spec.make_driver(d, bus, clock), sim
+            faults = d.sim.nak_rate if d.sim else 0.0
+            if b.transport == "spi":
+                seed = d.sim.seed if d.sim else 0
+                transport = SimSpiDev(sim, faults, seed, getattr(sim, "spi_dummy_bytes", 0))
+            else:
+                shared.attach(b.address, sim, faults)
+        elif isinstance(b, SpiBus):
+            transport = open_spidev(b)
+        return spec.make_driver(d, transport, clock), sim
 
     return connect
 

@@ -21,6 +21,10 @@ class I2cBus(_Strict):
     def key(self) -> str:
         return self.bus if isinstance(self.bus, str) else f"/dev/i2c-{self.bus}"
 
+    @property
+    def slot(self) -> tuple[str, ...]:
+        return (self.key, f"0x{self.address:02x}")
+
 
 class SpiBus(_Strict):
     kind: Literal["spi"]
@@ -30,7 +34,12 @@ class SpiBus(_Strict):
 
     @property
     def key(self) -> str:
-        return self.path
+        """The bus, not the chip select: /dev/spidev0.0 and /dev/spidev0.1 share one worker."""
+        return self.path.rsplit(".", 1)[0]
+
+    @property
+    def slot(self) -> tuple[str, ...]:
+        return (self.path,)
 
 
 class SerialBus(_Strict):
@@ -42,18 +51,37 @@ class SerialBus(_Strict):
     def key(self) -> str:
         return self.port
 
+    @property
+    def slot(self) -> tuple[str, ...]:
+        return (self.port,)
+
 
 class SimBus(_Strict):
-    """A simulated I2C bus: devices naming the same `bus` share it (and its worker thread)."""
+    """A simulated bus: devices naming the same `bus` share it (and its worker thread).
+
+    `transport = "i2c"` puts the chip at `address`; `"spi"` on chip select `cs`. `speed_hz` is
+    the clock the config checks rates against, as for a real bus."""
 
     kind: Literal["sim"]
     bus: str = "sim0"
+    transport: Literal["i2c", "spi"] = "i2c"
     address: int = Field(0x68, ge=0x03, le=0x77)
-    speed_hz: int = Field(400_000, gt=0)
+    cs: int = Field(0, ge=0, le=15)
+    speed_hz: int | None = Field(None, gt=0, description="default: 400 kHz I2C, 10 MHz SPI")
 
     @property
     def key(self) -> str:
         return f"sim:{self.bus}"
+
+    @property
+    def clock_hz(self) -> int:
+        return self.speed_hz or (400_000 if self.transport == "i2c" else 10_000_000)
+
+    @property
+    def slot(self) -> tuple[str, ...]:
+        if self.transport == "spi":
+            return (self.key, f"cs{self.cs}")
+        return (self.key, f"0x{self.address:02x}")
 
 
 Bus = Annotated[I2cBus | SpiBus | SerialBus | SimBus, Field(discriminator="kind")]
@@ -61,6 +89,11 @@ Bus = Annotated[I2cBus | SpiBus | SerialBus | SimBus, Field(discriminator="kind"
 
 def describe(bus: I2cBus | SpiBus | SerialBus | SimBus) -> str:
     """Short human form for status tables and logs."""
-    if isinstance(bus, I2cBus | SimBus):
-        return f"{bus.kind}:{bus.key.removeprefix('sim:')}@0x{bus.address:02x}"
+    if isinstance(bus, SimBus):
+        where = f"cs{bus.cs}" if bus.transport == "spi" else f"0x{bus.address:02x}"
+        return f"sim-{bus.transport}:{bus.bus}@{where}"
+    if isinstance(bus, I2cBus):
+        return f"i2c:{bus.key}@0x{bus.address:02x}"
+    if isinstance(bus, SpiBus):
+        return f"spi:{bus.path}"
     return f"{bus.kind}:{bus.key}"

@@ -8,11 +8,11 @@ from imud.chips.base import ChipSpec, Driver
 from imud.clock import Clock
 
 
-def _mpu6050_driver(cfg: Any, bus: Any, clock: Clock) -> Driver:
-    from imud.buses.i2c import I2CDevice
+def _mpu6050_driver(cfg: Any, transport: Any, clock: Clock) -> Driver:
+    from imud.buses.registers import register_device
     from imud.chips.mpu6050 import Mpu6050Driver
 
-    return Mpu6050Driver(cfg, I2CDevice(bus, cfg.bus.address), clock)
+    return Mpu6050Driver(cfg, register_device(cfg.bus, transport), clock)  # type: ignore[arg-type]
 
 
 def _mpu6050_sim(cfg: Any, clock: Clock) -> Any:
@@ -21,11 +21,28 @@ def _mpu6050_sim(cfg: Any, clock: Clock) -> Any:
     return Mpu6050Sim(cfg.sim, clock)
 
 
+def _icm42688p_driver(cfg: Any, transport: Any, clock: Clock) -> Driver:
+    from imud.buses.registers import register_device
+    from imud.chips.icm42688p import Icm42688pDriver
+
+    return Icm42688pDriver(cfg, register_device(cfg.bus, transport), clock)
+
+
+def _icm42688p_sim(cfg: Any, clock: Clock) -> Any:
+    from imud.sim.icm42688p import Icm42688pSim
+
+    return Icm42688pSim(cfg.sim, clock)
+
+
 def _specs() -> dict[str, ChipSpec]:
+    from imud.chips.icm42688p import Icm42688pConfig
     from imud.chips.mpu6050 import Mpu6050Config
 
     return {
         "mpu6050": ChipSpec("mpu6050", Mpu6050Config, _mpu6050_driver, _mpu6050_sim, ("i2c",)),
+        "icm42688p": ChipSpec(
+            "icm42688p", Icm42688pConfig, _icm42688p_driver, _icm42688p_sim, ("spi", "i2c")
+        ),
     }
 
 

@@ -68,6 +68,9 @@ class RawBatch:
     valid: npt.NDArray[np.bool_] | None = None
     # the FIFO was full: its newest sample is older than the read, and samples after it dropped
     fifo_full: bool = False
+    # per-sample chip clock counter (e.g. the ICM-42688-P FIFO timestamp), modulo `ticks_modulo`
+    chip_ticks: npt.NDArray[np.int64] | None = None
+    ticks_modulo: int = 0
 
     @property
     def n(self) -> int:
@@ -78,6 +81,7 @@ class RawBatch:
 class DriverCounters:
     fifo_overflows: int = 0
     fifo_resets: int = 0
+    bad_transfers: int = 0
     bad_registers: int = 0
     resets: int = 0
 

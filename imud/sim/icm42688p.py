@@ -1,0 +1,248 @@
+"""Register-level ICM-42688-P simulator: banked registers, soft reset, low-noise power modes with
+start-up times, 2 kB FIFO in bypass / stream / stop-on-full mode with packets 1-4, the FIFO
+timestamp counter on the chip's own clock, and the 'first count after a flush reads 0' quirk.
+
+Modelled behaviour beyond the facts sheet (docs/chips/icm42688p-facts.md), stated so it can be
+checked against silicon: the accel/gyro rate is the gyro's ODR (imud always sets both alike); in
+stream mode the oldest whole packets make room; reading an empty FIFO returns 0x80 bytes (the
+'FIFO empty' header); while resetting, reads return zeros.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from imud.chips import icm42688p as r
+from imud.clock import Clock
+from imud.sim.chip import SampledChip
+from imud.sim.physics import ChipFigures, quantise
+from imud.sim.settings import SimSettings
+
+FIGURES = ChipFigures(
+    accel_noise_ug_rthz=70.0,
+    gyro_noise_dps_rthz=0.0028,
+    accel_bias_mg=20.0,
+    gyro_bias_dps=0.5,
+    accel_bias_instability_ug=40.0,
+    gyro_bias_instability_dph=2.5,
+    scale_error=0.005,
+    misalignment_deg=0.2,
+    accel_temp_drift_mg_per_c=0.15,
+    gyro_temp_drift_dps_per_c=0.005,
+)
+
+ACCEL_STARTUP_NS = 20_000_000
+GYRO_STARTUP_NS = 30_000_000
+RESET_BUSY_NS = 1_000_000
+TICK_NS = 1000.0 * 32 / 30  # FIFO timestamp tick at nominal clock (PLL 19.2 MHz, TDK eMD)
+INVALID16 = -32768
+ODR_BY_CODE = {code: hz for hz, code in r.ODR_CODES.items()}
+
+_BANK0_DEFAULTS = {
+    r.WHO_AM_I: r.WHO_AM_I_VALUE, r.INTF_CONFIG0: 0x30, r.INTF_CONFIG1: 0x91,
+    r.GYRO_CONFIG0: 0x06, r.ACCEL_CONFIG0: 0x06, r.GYRO_ACCEL_CONFIG0: 0x11,
+    r.TMST_CONFIG: 0x23, r.DEVICE_CONFIG: 0x00,
+}  # fmt: skip
+_BANK1_DEFAULTS = {r.GYRO_CONFIG_STATIC2: 0xA0, r.GYRO_CONFIG_STATIC3: 0x0D,
+                   r.GYRO_CONFIG_STATIC4: 0xAA, r.GYRO_CONFIG_STATIC5: 0x80}  # fmt: skip
+_BANK2_DEFAULTS = {r.ACCEL_CONFIG_STATIC2: 0x30, r.ACCEL_CONFIG_STATIC3: 0x40,
+                   r.ACCEL_CONFIG_STATIC4: 0x62}  # fmt: skip
+_READ_ONLY0 = {r.WHO_AM_I, r.INT_STATUS, r.FIFO_COUNTH, r.FIFO_COUNTH + 1, r.FIFO_DATA,
+               *range(r.TEMP_DATA1, r.TEMP_DATA1 + 14)}  # fmt: skip
+
+
+class Icm42688pSim(SampledChip):
+    spi_dummy_bytes = 0
+
+    def __init__(self, settings: SimSettings, clock: Clock) -> None:
+        super().__init__(settings, clock, FIGURES)
+        self.packets_dropped = 0
+        self._power_on_reset()
+
+    # --- state ------------------------------------------------------------------------------
+    def _power_on_reset(self) -> None:
+        self.banks = [bytearray(128) for _ in range(5)]
+        for bank, defaults in ((0, _BANK0_DEFAULTS), (1, _BANK1_DEFAULTS), (2, _BANK2_DEFAULTS)):
+            for reg, val in defaults.items():
+                self.banks[bank][reg] = val
+        self.bank = 0
+        self.fifo = bytearray()
+        self.int_status = 0
+        self.sampling = False
+        self.busy_until_ns = 0
+        self.on_since_ns = 0
+        self.count_zero_once = False
+        self.latest = np.zeros(6, dtype=np.int32)
+        self.latest_temp = 0
+        self._anchor(self.clock.now_ns())
+
+    @property
+    def regs(self) -> bytearray:
+        return self.banks[0]
+
+    @property
+    def rate_hz(self) -> float:
+        code = self.regs[r.GYRO_CONFIG0] & 0x0F
+        return ODR_BY_CODE.get(code, 1000.0) * (1 + self.clock_error)
+
+    @property
+    def hires(self) -> bool:
+        return bool(self.regs[r.FIFO_CONFIG1] & r.FIFO_HIRES_EN)
+
+    def _lsb(self, hires: bool) -> tuple[float, float]:
+        g = r.GYRO_RANGES_DPS[self.regs[r.GYRO_CONFIG0] >> 5]
+        a = r.ACCEL_RANGES_G[(self.regs[r.ACCEL_CONFIG0] >> 5) & 3]
+        if hires:  # only 2000 deg/s and 16 g are operational in 20-bit mode
+            g, a = 2000.0, 16
+        return r.accel_scale_ms2(a, hires), r.gyro_scale_rads(g, hires)
+
+    # --- sampling ---------------------------------------------------------------------------
+    def _emit(
+        self,
+        t_ns: npt.NDArray[np.int64],
+        fm: npt.NDArray[np.float64],
+        wm: npt.NDArray[np.float64],
+        temp: npt.NDArray[np.float64],
+    ) -> None:
+        hires = self.hires
+        a_lsb, g_lsb = self._lsb(hires)
+        bits = 20 if hires else 16
+        acc = quantise(fm, a_lsb, bits)
+        gyr = quantise(wm, g_lsb, bits)
+        if hires:
+            acc &= ~0x3  # 18-bit effective accel: the low two bits read 0
+        # sensors still starting up deliver the invalid marker
+        on = t_ns - self.on_since_ns
+        acc[on < ACCEL_STARTUP_NS] = -(2 ** (bits - 1))
+        gyr[on < GYRO_STARTUP_NS] = -(2 ** (bits - 1))
+        shift = 4 if hires else 0
+        self.latest[:3], self.latest[3:] = acc[-1] >> shift, gyr[-1] >> shift
+        self.latest_temp = int(np.rint((temp[-1] - 25.0) * 132.48))
+        self.int_status |= 0x08  # DATA_RDY
+        mode = self.regs[r.FIFO_CONFIG] >> 6
+        en = self.regs[r.FIFO_CONFIG1] & (r.FIFO_ACCEL_EN | r.FIFO_GYRO_EN)
+        if mode and en == (r.FIFO_ACCEL_EN | r.FIFO_GYRO_EN):
+            self._push(self._packets(t_ns, acc, gyr, temp, hires), mode)
+
+    def _ticks(self, t_ns: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+        """The FIFO timestamp: a free-running counter on the chip's own (imperfect) clock."""
+        chip_ns = (t_ns - self.t_origin_ns) * (1 + self.clock_error)
+        ticks: npt.NDArray[np.int64] = np.floor(chip_ns / TICK_NS).astype(np.int64) & 0xFFFF
+        return ticks
+
+    def _packets(
+        self,
+        t_ns: npt.NDArray[np.int64],
+        acc: npt.NDArray[np.int32],
+        gyr: npt.NDArray[np.int32],
+        temp: npt.NDArray[np.float64],
+        hires: bool,
+    ) -> npt.NDArray[np.uint8]:
+        n = t_ns.shape[0]
+        size = r.PACKET_HIRES if hires else r.PACKET
+        out = np.zeros((n, size), dtype=np.uint8)
+        hdr = r.HDR_ACCEL | r.HDR_GYRO | 0x08  # TMST_FSYNC = 0b10: ODR timestamp
+        out[:, 0] = hdr | (r.HDR_20 if hires else 0)
+        hi_a, hi_g = (acc >> 4, gyr >> 4) if hires else (acc, gyr)
+        be = np.concatenate([hi_a, hi_g], axis=1).astype(">i2").view(np.uint8).reshape(n, 12)
+        out[:, 1:13] = be
+        ticks = self._ticks(t_ns)
+        if hires:
+            t16 = np.rint((temp - 25.0) * 132.48).astype(">i2").view(np.uint8).reshape(n, 2)
+            out[:, 13:15] = t16
+            out[:, 15] = ticks >> 8
+            out[:, 16] = ticks & 0xFF
+            out[:, 17:20] = ((acc & 0xF) << 4 | (gyr & 0xF)).astype(np.uint8)
+        else:
+            out[:, 13] = (
+                np.clip(np.rint((temp - 25.0) * 2.07), -128, 127).astype(np.int8).view(np.uint8)
+            )
+            out[:, 14] = ticks >> 8
+            out[:, 15] = ticks & 0xFF
+        return out
+
+    def _push(self, packets: npt.NDArray[np.uint8], mode: int) -> None:
+        size = packets.shape[1]
+        room = (r.FIFO_SIZE - len(self.fifo)) // size
+        if mode == 1:  # stream: the oldest whole packets make room
+            self.fifo += packets.tobytes()
+            excess = len(self.fifo) - r.FIFO_SIZE
+            if excess > 0:
+                drop = -(-excess // size) * size
+                del self.fifo[:drop]
+                self.packets_dropped += drop // size
+                self.int_status |= r.INT_FIFO_FULL
+            return
+        keep = packets[:room]  # stop-on-full: what does not fit is dropped
+        self.fifo += keep.tobytes()
+        if len(packets) > room:
+            self.packets_dropped += len(packets) - room
+            self.int_status |= r.INT_FIFO_FULL
+
+    # --- bus side ---------------------------------------------------------------------------
+    def read(self, register: int, length: int) -> bytes:
+        if self.clock.now_ns() < self.busy_until_ns:
+            return bytes(length)
+        self.advance()
+        if register == r.REG_BANK_SEL:
+            return bytes([self.bank]) + bytes(length - 1)
+        if self.bank != 0:
+            return bytes(self.banks[self.bank][register : register + length]).ljust(length, b"\0")
+        if register == r.FIFO_DATA:
+            out = bytes(self.fifo[:length])
+            del self.fifo[:length]
+            return out + b"\x80" * (length - len(out))
+        image = bytearray(self.regs)
+        image[r.INT_STATUS] = self.int_status
+        count = 0 if self.count_zero_once else len(self.fifo)
+        if self.regs[r.INTF_CONFIG0] & 0x40:  # FIFO_COUNT_REC: in packets
+            count //= r.PACKET_HIRES if self.hires else r.PACKET
+        big = bool(self.regs[r.INTF_CONFIG0] & 0x20)
+        image[r.FIFO_COUNTH : r.FIFO_COUNTH + 2] = count.to_bytes(2, "big" if big else "little")
+        data = np.concatenate([[self.latest_temp], self.latest]).astype(">i2").tobytes()
+        image[r.TEMP_DATA1 : r.TEMP_DATA1 + 14] = data
+        end = min(register + length, len(image))
+        if register <= r.INT_STATUS < end:
+            self.int_status = 0  # clears on read
+        if register <= r.FIFO_COUNTH < end:
+            self.count_zero_once = False
+        return bytes(image[register:end]) + bytes(register + length - end)
+
+    def write(self, register: int, data: bytes) -> None:
+        if self.clock.now_ns() < self.busy_until_ns:
+            return
+        self.advance()
+        for i, value in enumerate(data):
+            self._write_one(register + i, value)
+
+    def _write_one(self, reg: int, value: int) -> None:
+        now = self.clock.now_ns()
+        if reg == r.REG_BANK_SEL:
+            self.bank = value & 0x07 if value & 0x07 <= 4 else self.bank
+            return
+        if self.bank != 0:
+            self.banks[self.bank][reg] = value
+            return
+        if reg in _READ_ONLY0:
+            return
+        if reg == r.DEVICE_CONFIG and value & r.SOFT_RESET:
+            self._power_on_reset()
+            self.busy_until_ns = now + RESET_BUSY_NS
+            self.int_status = r.INT_RESET_DONE
+            return
+        if reg == r.SIGNAL_PATH_RESET:
+            if value & r.FIFO_FLUSH:
+                self.fifo.clear()
+                self.count_zero_once = True
+            return  # self-clearing bits
+        old = self.regs[reg]
+        self.regs[reg] = value
+        if reg == r.PWR_MGMT0:
+            on = value & 0x0F == r.PWR_LOW_NOISE
+            if on and not self.sampling:
+                self.on_since_ns = now
+                self._anchor(now)
+            self.sampling = on
+        elif reg in (r.GYRO_CONFIG0, r.ACCEL_CONFIG0) and (old ^ value) & 0x0F:
+            self._anchor(now)  # a new ODR restarts the sample grid
