@@ -91,7 +91,7 @@ def test_config_schema() -> None:
     assert {"zenoh", "device"} <= set(schema["properties"])
     assert "mpu6050" in r.stdout
     assert "gyro_range_dps" in r.stdout
-    mpu = next(d for d in schema["$defs"].values() if "gyro_range_dps" in d.get("properties", {}))
+    mpu = schema["$defs"]["Mpu6050Config"]
     assert sorted(mpu["properties"]["gyro_range_dps"]["enum"]) == [250, 500, 1000, 2000]
     assert mpu.get("additionalProperties") is False  # typos are rejected
 
