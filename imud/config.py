@@ -57,9 +57,25 @@ class ZenohSettings(BaseModel):
         return v
 
 
+class DaemonSettings(BaseModel):
+    """How the daemon itself runs."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    realtime_priority: int | None = Field(
+        None,
+        ge=1,
+        le=99,
+        description="SCHED_FIFO priority for the bus worker threads (needs CAP_SYS_NICE or "
+        "LimitRTPRIO). At 16-32 kHz a FIFO lasts 4-8 ms: without it an ordinary scheduler "
+        "delay can overflow it",
+    )
+
+
 class ImudConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
+    daemon: DaemonSettings = Field(default_factory=DaemonSettings)
     zenoh: ZenohSettings = Field(default_factory=ZenohSettings)
     device: list[DeviceConfig] = Field(min_length=1)
 

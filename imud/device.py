@@ -76,6 +76,9 @@ class DeviceRunner:
         self.pipeline: Pipeline | None = None
         self._starting: Iterator[int] | None = None
         self._phase = 0.0
+        self.poll_late_max_ns = 0
+        self._late_cur_ns = 0
+        self._late_window_ns = 0
         self._unpublished_lost = 0
         self._run_end = 0  # end of the last published run within the current batch
         self._loss_unlogged = 0
@@ -229,6 +232,15 @@ class DeviceRunner:
             )
             self._loss_unlogged, self._loss_logged_ns = 0, now
 
+    def note_lateness(self, late_ns: int, now: int) -> None:
+        """How late the bus worker came to this device's poll; the worst over ~10 s is shown
+        in status: the scheduling jitter the FIFO has to absorb."""
+        if now - self._late_window_ns > 10_000_000_000:
+            self.poll_late_max_ns, self._late_window_ns = self._late_cur_ns, now
+            self._late_cur_ns = 0
+        self._late_cur_ns = max(self._late_cur_ns, late_ns)
+        self.poll_late_max_ns = max(self.poll_late_max_ns, late_ns)
+
     def _poll_delay(self) -> int:
         """Poll interval plus a golden-ratio fraction of a sample period: read instants then
         sweep every phase of the chip's sample clock, which is what pins its timing down (a
@@ -279,6 +291,7 @@ class DeviceRunner:
             "bus_errors": self.bus_errors,
             "bad_registers": c.bad_registers if c else 0,
             "restarts": self.restarts,
+            "poll_late_max_ms": round(self.poll_late_max_ns / 1e6, 3),
             "temperature_c": None if self.temperature_c is None else round(self.temperature_c, 2),
             "calibration": str(self.calibration.path) if self.calibration else None,
             "last_error": self.last_error,

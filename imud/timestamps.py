@@ -13,11 +13,37 @@ chip's sample clock keeps running while its FIFO is emptied.
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+
+
+class _Ring:
+    """The last `size` reads as rows (k, t_before, t_after, segment), oldest first, in a
+    preallocated array: no per-read conversion from Python tuples."""
+
+    def __init__(self, size: int) -> None:
+        self.buf = np.zeros((size, 4), dtype=np.float64)
+        self.size = size
+        self.n = 0
+        self.head = 0
+
+    def append(self, k: float, tb: float, ta: float, seg: float) -> None:
+        self.buf[self.head] = (k, tb, ta, seg)
+        self.head = (self.head + 1) % self.size
+        self.n = min(self.n + 1, self.size)
+
+    def rows(self, ordered: bool = True) -> npt.NDArray[np.float64]:
+        if self.n < self.size or not ordered:
+            return self.buf[: self.n]
+        return np.roll(self.buf, -self.head, axis=0)
+
+    def clear(self) -> None:
+        self.n = self.head = 0
+
+    def __len__(self) -> int:
+        return self.n
 
 
 @dataclass(slots=True)
@@ -45,8 +71,8 @@ class SampleClock:
         self._my = 0.0
         self._vk = 0.0
         self._cky = 0.0
-        self._recent: deque[tuple[int, int, int, int]] = deque(maxlen=recent)
-        self._history: deque[tuple[int, int, int, int]] = deque(maxlen=memory_reads)
+        self._recent = _Ring(recent)
+        self._history = _Ring(memory_reads)
         self._bounds = (1.0, 0.0)  # (lo, hi) on the period; lo > hi means "none yet"
         self._segment = 0
 
@@ -77,8 +103,8 @@ class SampleClock:
         self._my += alpha * dy
         self._vk = forget * self._vk + (1 - alpha) * dx * dx
         self._cky = forget * self._cky + (1 - alpha) * dx * dy
-        self._recent.append((k, t_before, t_after, self._segment))
-        self._history.append((k, t_before, t_after, self._segment))
+        self._recent.append(k, t_before, t_after, self._segment)
+        self._history.append(k, t_before, t_after, self._segment)
         if self._count % 8 == 0:
             self._bounds = self._slope_bounds()
         if self._count >= 3 and self._vk > 4.0:
@@ -93,7 +119,7 @@ class SampleClock:
     def _slope_bounds(self, edge: int = 16) -> tuple[float, float]:
         """The periods every pair of an early and a late read (same segment) allows:
         t_k <= t_after and t_(k+1) > t_before for both bound the period from both sides."""
-        rows = np.asarray(self._history, dtype=np.float64)
+        rows = self._history.rows()
         rows = rows[rows[:, 3] == self._segment]
         if len(rows) < 2 * edge:
             return (1.0, 0.0)
@@ -115,9 +141,9 @@ class SampleClock:
 
         Reads from before the last resync count only while they agree with the current ones: if
         a gap was misjudged by a sample, they would pull the line off by a period."""
-        if not self._recent:
+        if not len(self._recent):
             return 0.0
-        rows = np.asarray(self._recent, dtype=np.float64)
+        rows = self._recent.rows(ordered=False)  # a band does not care about order
         lo, hi = self._band(rows)
         if lo > hi:
             current = rows[rows[:, 3] == self._segment]
