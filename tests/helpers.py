@@ -9,12 +9,11 @@ from typing import Any
 import numpy as np
 
 from imud.chips import CHIPS
-from imud.chips.mpu6050 import Mpu6050Config, Mpu6050Driver
 from imud.clock import VirtualClock
 from imud.config import parse_config
 from imud.device import DeviceRunner
 from imud.sim.i2c import SimI2CBus
-from imud.sim.mpu6050 import Mpu6050Sim
+from imud.sim.spi import SimSpiDev
 from imud.wire import Batch, decode
 
 
@@ -26,11 +25,11 @@ def free_port() -> int:
 
 @dataclass
 class Rig:
-    cfg: Mpu6050Config
+    cfg: Any
     clock: VirtualClock
     bus: SimI2CBus
-    sim: Mpu6050Sim
-    driver: Mpu6050Driver
+    sim: Any
+    driver: Any
     runner: DeviceRunner
     out: list[bytes] = field(default_factory=list)
     truth: list[bytes] = field(default_factory=list)
@@ -52,17 +51,22 @@ class Rig:
 
 
 def make_rig(device: dict[str, Any], sim: dict[str, Any] | None = None) -> Rig:
+    """Any chip on a simulated I2C bus, or on SPI with `"bus": {"kind": "sim", "transport":
+    "spi"}`, driven by the daemon's own DeviceRunner at virtual time."""
     d = {"name": "t0", "chip": "mpu6050", "bus": {"kind": "sim"}, **device}
     d["sim"] = {"truth": True, **(sim or {})}
-    cfg = parse_config({"device": [d]}).device[0]
-    assert isinstance(cfg, Mpu6050Config)
+    cfg: Any = parse_config({"device": [d]}).device[0]
     clock = VirtualClock()
     bus = SimI2CBus()
-    spec = CHIPS["mpu6050"]
+    spec = CHIPS[cfg.chip]
     chip = spec.make_sim(cfg, clock)
     assert cfg.sim is not None
-    bus.attach(cfg.bus.address, chip, cfg.sim.nak_rate)  # type: ignore[union-attr]
-    driver = spec.make_driver(cfg, bus, clock)
+    if cfg.bus.transport == "spi":
+        transport: Any = SimSpiDev(chip, cfg.sim.nak_rate, cfg.sim.seed)
+    else:
+        bus.attach(cfg.bus.address, chip, cfg.sim.nak_rate)
+        transport = bus
+    driver = spec.make_driver(cfg, transport, clock)
     rig = Rig(cfg, clock, bus, chip, driver, None, [], [])  # type: ignore[arg-type]
     rig.runner = DeviceRunner(
         cfg,

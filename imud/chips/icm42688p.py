@@ -360,6 +360,8 @@ class Icm42688pDriver:
             self.dev.write_u8(REG_BANK_SEL, bank)
             got = self.dev.read_u8(reg)
             if got != val:
+                got = self.dev.read_u8(reg)  # once more: a garbled read is not a wrong write
+            if got != val:
                 raise DeviceIdentityError(
                     f"bank {bank} register 0x{reg:02x} reads 0x{got:02x} after writing 0x{val:02x}"
                 )
@@ -397,6 +399,8 @@ class Icm42688pDriver:
         t_before = self.clock.now_ns()
         head = self.dev.read(INT_STATUS, 3)
         t_after = self.clock.now_ns()
+        if head == b"\xff\xff\xff":  # the chip never sends this: a floating MISO line
+            raise BusError(0, "status and FIFO count read all ones: no answer on MISO")
         status, count = head[0], int.from_bytes(head[1:3], "big")
         full = bool(status & INT_FIFO_FULL) or count >= FIFO_SIZE - self.packet + 1
         n = min(count, FIFO_SIZE) // self.packet
@@ -407,17 +411,19 @@ class Icm42688pDriver:
         data = self.dev.read(FIFO_DATA, n * self.packet)
         r1 = self.clock.now_ns()
         p = decode_packets(data, self.cfg.hires)
-        if p.n < n or (p.n and bool(data[0 : p.n * self.packet : self.packet][0] & 0x80)):
-            # the FIFO held fewer packets than it counted (or a transfer fault): resync
-            self.counters.fifo_resets += 0
         self.invalid_packets += int((~p.valid).sum())
+        if p.n < n:
+            # fewer packets than counted: a garbled burst (SPI reads 0xFF when MISO floats) or a
+            # FIFO out of step. Keep what decoded, flush, and resync on the next read.
+            self.counters.bad_transfers += 1
+            batch = self._batch(p, t_before, t_after)
+            self._flush()
+            return batch
+        batch = self._batch(p, t_before, t_after, full=full)
         if full:
             # stop-on-full: what we read is whole and valid, but the chip dropped the samples
             # that came while it was full; space frees as we read, so the stream resumes then
             self.counters.fifo_overflows += 1
-            self._resync, self._restart_ns = True, (r0, r1)
-        batch = self._batch(p, t_before, t_after, full=full)
-        if full:
             self._resync, self._restart_ns = True, (r0, r1)
         return batch
 
@@ -429,6 +435,8 @@ class Icm42688pDriver:
         reg, want = self._plan[self._check_index]
         self._check_index = (self._check_index + 1) % len(self._plan)
         got = self.dev.read_u8(reg)
+        if got != want:
+            got = self.dev.read_u8(reg)  # once more: a garbled transfer is not a changed chip
         if got != want:
             self.counters.bad_registers += 1
             raise RegisterMismatch(

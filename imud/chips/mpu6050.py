@@ -306,6 +306,8 @@ class Mpu6050Driver:
         self._check_index = (self._check_index + 1) % len(self._checked)
         got = self.dev.read_u8(reg)
         if got != want:
+            got = self.dev.read_u8(reg)  # once more: a garbled transfer is not a changed chip
+        if got != want:
             self.counters.bad_registers += 1
             raise RegisterMismatch(
                 0,

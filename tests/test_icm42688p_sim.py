@@ -1,0 +1,142 @@
+"""ICM-42688-P driver + simulator at virtual time, over simulated SPI and I2C."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from imud.chips import icm42688p as reg
+from tests.helpers import concat, make_rig, match_truth
+
+G = 9.80665
+SPI = {"kind": "sim", "transport": "spi", "speed_hz": 20_000_000}
+
+
+def _ideal(**sim: object) -> dict[str, object]:
+    return {"errors": {"ideal": True}, **sim}
+
+
+@pytest.mark.parametrize("odr", [32000.0, 16000.0, 8000.0, 1000.0, 200.0, 12.5])
+def test_every_rate_streams_continuously_on_the_chips_clock(odr: float) -> None:
+    rig = make_rig({"chip": "icm42688p", "odr_hz": odr, "bus": SPI},
+                   _ideal(clock_error=-0.008, seed=1))  # fmt: skip
+    seconds = 3.0 if odr >= 1000 else 40.0
+    rig.run(seconds, jitter_ns=int(min(100_000, 2e9 / odr)))
+    m = concat(rig.batches())
+    true_rate = odr * (1 - 0.008)
+    assert rig.runner.state == "running" and rig.runner.lost_samples == 0
+    assert rig.driver.counters.fifo_overflows == 0 and rig.driver.invalid_packets == 0
+    assert np.all(np.diff(m["seq"]) == 1) and np.all(np.diff(m["t_ns"]) > 0)
+    assert rig.runner._sclock.rate_hz == pytest.approx(true_rate, rel=3e-4)
+    # the FIFO never passes half full: poll interval against its capacity in time
+    assert rig.driver.poll_interval_ns * odr / 1e9 <= rig.driver.fifo_capacity / 2
+
+
+def test_constant_rotation_about_z_at_32khz_reads_1_745_rad_s() -> None:
+    rig = make_rig(
+        {"chip": "icm42688p", "odr_hz": 32000, "gyro_range_dps": 250, "bus": SPI},
+        _ideal(seed=2, motion={"kind": "tumble", "rate_dps": [0.0, 0.0, 100.0]}),
+    )
+    rig.run(2.0)
+    m = concat(rig.batches())
+    t = concat(rig.truth_batches())
+    assert m["gyro"][:, 2].mean() == pytest.approx(1.745329, abs=2e-4)
+    i = match_truth(m, t)
+    settled = m["t_ns"] > m["t_ns"][0] + 1e9
+    err = np.abs(m["t_ns"] - t["t_ns"][i])[settled]
+    assert err.max() < 0.3 * 31_250  # stamps within a third of a 31 us period
+    # the accel turns with the body: compare sample by sample with the truth
+    da = m["accel"][settled] - t["accel"][i][settled]
+    sigma = 70e-6 * G * math.sqrt(32000)
+    assert np.abs(da.mean(axis=0)).max() < 0.01 and da.std() < 1.3 * sigma
+
+
+def test_noise_matches_datasheet_density() -> None:
+    rig = make_rig({"chip": "icm42688p", "odr_hz": 1000, "accel_range_g": 2,
+                    "gyro_range_dps": 125, "bus": SPI}, _ideal(seed=3))  # fmt: skip
+    rig.run(5.0)
+    m = concat(rig.batches())
+    assert m["accel"].std(axis=0) == pytest.approx([70e-6 * G * math.sqrt(1000)] * 3, rel=0.1)
+    sg = math.radians(0.0028) * math.sqrt(1000)
+    assert m["gyro"].std(axis=0) == pytest.approx([sg] * 3, rel=0.1)
+    assert m["accel"].mean(axis=0)[2] == pytest.approx(G, abs=0.005)
+    assert m["temp"].mean() == pytest.approx(25.0, abs=0.5)  # int8 FIFO temperature
+
+
+def test_hires_packets_carry_20_bit_data() -> None:
+    rig = make_rig(
+        {"chip": "icm42688p", "odr_hz": 8000, "hires": True, "bus": SPI},
+        _ideal(seed=4, motion={"kind": "tumble", "rate_dps": [0.0, 0.0, 100.0]},
+               errors={"ideal": True, "gyro_noise_dps_rthz": 0.0, "accel_noise_ug_rthz": 0.0}),
+    )  # fmt: skip
+    rig.run(1.0)
+    m = concat(rig.batches())
+    gz = m["gyro"][:, 2]
+    # with noise off the 20-bit value is 100 deg/s to within one 20-bit LSB (2000/2^19 deg/s)
+    assert np.abs(np.degrees(gz) - 100.0).max() <= 2000 / 2**19 * 1.01
+    assert m["temp"].std() < 0.01  # int16 temperature at 132.48 LSB/C
+
+
+def test_stop_on_full_overflow_keeps_the_fifo_and_counts_the_rest() -> None:
+    rig = make_rig({"chip": "icm42688p", "odr_hz": 8000, "bus": SPI},
+                   _ideal(seed=5, clock_error=0.004))  # fmt: skip
+    rig.run(4.0, jitter_ns=50_000)
+    for _ in range(3):
+        rig.clock.advance(60_000_000)  # a 60 ms stall: 480 samples, the FIFO holds 128
+        rig.run(1.0, jitter_ns=50_000)
+    m = concat(rig.batches())
+    t = concat(rig.truth_batches())
+    assert rig.driver.counters.fifo_overflows == 3 and rig.runner.state == "running"
+    i = match_truth(m, t)
+    # nothing discarded: the full FIFO's 128 samples were read, the chip dropped the rest
+    assert len(np.unique(t["seq"][i] - m["seq"])) == 1
+    gaps = np.diff(m["seq"]) - 1
+    assert (gaps > 0).sum() == 3 and rig.runner.lost_samples == gaps.sum()
+    # 60 ms of samples (plus up to one 2 ms poll interval either side) minus the 128 kept
+    assert 480 * 1.004 - 128 - 2 <= gaps.max() <= 496 * 1.004 - 128 + 2
+
+
+def test_spi_faults_are_bus_errors_not_data() -> None:
+    rig = make_rig({"chip": "icm42688p", "odr_hz": 4000, "bus": SPI},
+                   _ideal(seed=6, nak_rate=0.03))  # fmt: skip
+    rig.run(5.0, jitter_ns=50_000)
+    m = concat(rig.batches())
+    t = concat(rig.truth_batches())
+    assert rig.runner.bus_errors + rig.driver.counters.bad_transfers > 5
+    assert rig.runner.state == "running"
+    i = match_truth(m, t)
+    # a garbled burst never becomes data: every published sample matches the truth within noise
+    sigma = 70e-6 * G * math.sqrt(4000)
+    assert np.abs(m["accel"] - t["accel"][i]).max() < 6 * sigma
+    assert np.all(np.diff(m["seq"]) >= 1)
+    assert rig.runner.lost_samples == (np.diff(m["seq"]) - 1).sum()
+
+
+def test_start_up_packets_with_the_invalid_marker_are_holes() -> None:
+    rig = make_rig({"chip": "icm42688p", "odr_hz": 1000, "bus": SPI}, _ideal(seed=7))
+    rig.run(1.0)
+    rig.sim.on_since_ns = rig.clock.now_ns()  # the gyro restarts (as after a glitch)
+    rig.run(1.0)
+    assert rig.driver.invalid_packets >= 25  # ~30 ms of gyro start-up at 1 kHz
+    m = concat(rig.batches())
+    assert np.all(m["gyro"] > -30)  # no -32768 marker ever reached the stream
+    assert rig.runner.lost_samples == (np.diff(m["seq"]) - 1).sum() >= 25
+
+
+def test_i2c_at_its_top_rate() -> None:
+    rig = make_rig({"chip": "icm42688p", "odr_hz": 2000,
+                    "bus": {"kind": "sim", "address": 0x69}}, _ideal(seed=8))  # fmt: skip
+    rig.run(2.0)
+    assert rig.runner.samples > 3800 and rig.runner.lost_samples == 0
+
+
+def test_register_glitch_reinitialises() -> None:
+    rig = make_rig({"chip": "icm42688p", "odr_hz": 1000, "bus": SPI}, _ideal(seed=9))
+    rig.run(1.0)
+    rig.sim.banks[0][reg.GYRO_CONFIG0] = 0x46  # +-500 deg/s, set behind our back
+    rig.run(2.0)
+    assert rig.driver.counters.bad_registers >= 1 and rig.runner.restarts >= 1
+    assert rig.sim.banks[0][reg.GYRO_CONFIG0] == rig.driver._plan[5][1]
+    assert rig.runner.state == "running"
