@@ -62,10 +62,14 @@ def batches(
     truth: bool = False,
     limit: int | None = None,
     timeout: float | None = None,
+    depth: int = 16384,
 ) -> Iterator[Batch]:
-    """Yield decoded batches from `<prefix>/<device>/imu` (or `/sim/truth`) as they arrive."""
+    """Yield decoded batches from `<prefix>/<device>/imu` (or `/sim/truth`) as they arrive.
+
+    `depth` batches are queued for the caller (8 s of a 32 kHz stream): a Python consumer that
+    pauses (GC, a slow print) must not push back on Zenoh, which would drop batches for it."""
     key = f"{prefix}/{device}/{'sim/truth' if truth else 'imu'}"
-    sub = session.declare_subscriber(key, zenoh.handlers.FifoChannel(1024))
+    sub = session.declare_subscriber(key, zenoh.handlers.FifoChannel(depth))
     try:
         seen = 0
         while limit is None or seen < limit:

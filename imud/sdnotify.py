@@ -14,6 +14,8 @@ class Notifier:
         self._sock: socket.socket | None = None
         if self._addr:
             self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+            # never wait for the manager: a full queue would otherwise freeze the event loop
+            self._sock.setblocking(False)
         usec = os.environ.get("WATCHDOG_USEC")
         pid = os.environ.get("WATCHDOG_PID")
         ok = usec is not None and usec.isdigit() and (pid is None or pid == str(os.getpid()))
@@ -22,5 +24,5 @@ class Notifier:
     def notify(self, *lines: str) -> None:
         if self._sock is None:
             return
-        with contextlib.suppress(OSError):  # systemd went away; nothing useful to do
+        with contextlib.suppress(OSError):  # systemd busy or gone: drop this notification
             self._sock.sendto("\n".join(lines).encode(), self._addr)

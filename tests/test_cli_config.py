@@ -26,7 +26,7 @@ def test_check_config_sim_toml() -> None:
     r = imud("check-config", "configs/sim.toml")
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout)
-    assert [d["name"] for d in doc["device"]] == ["imu0", "imu1"]
+    assert [d["name"] for d in doc["device"]] == ["imu0", "imu1", "icm0"]
     assert [d["chip"] for d in doc["device"]] == ["mpu6050", "mpu6050"]
     assert [d["odr_hz"] for d in doc["device"]] == [1000.0, 500.0]
     assert [d["bus"]["address"] for d in doc["device"]] == [0x68, 0x69]

@@ -76,6 +76,7 @@ PACKET = 16
 PACKET_HIRES = 20
 RESET_WAIT_NS = 2_000_000  # datasheet 1 ms, with margin
 STARTUP_WAIT_NS = 50_000_000  # gyro start-up before data is valid
+POWER_ON_WAIT_NS = 300_000  # datasheet: >= 200 us after a PWR_MGMT0 change before any write
 MAX_SPI_HZ = 24_000_000
 
 GYRO_RANGES_DPS: tuple[float, ...] = (
@@ -167,7 +168,11 @@ class Icm42688pConfig(DeviceBase):
     ui_filter: UiFilter = Field("odr/4", description="gyro and accel UI filter bandwidth")
     gyro_aaf_hz: int | Literal["off"] = Field(AAF_DEFAULT_GYRO_HZ, description="anti-alias 3 dB")
     accel_aaf_hz: int | Literal["off"] = Field(AAF_DEFAULT_ACCEL_HZ, description="anti-alias")
-    odr_hz: float = Field(1000, description="12.5, 25, 50, 100, 200, 500, 1000 ... 32000")
+    odr_hz: float = Field(
+        1000,
+        validate_default=True,  # the bus checks below must run for the default rate too
+        description="12.5, 25, 50, 100, 200, 500, 1000 ... 32000",
+    )
 
     @field_validator("gyro_range_dps")
     @classmethod
@@ -193,7 +198,9 @@ class Icm42688pConfig(DeviceBase):
         i2c = isinstance(bus, I2cBus) or (isinstance(bus, SimBus) and bus.transport == "i2c")
         speed = bus.clock_hz if isinstance(bus, SimBus) else getattr(bus, "speed_hz", None)
         if speed is not None and not i2c and speed > MAX_SPI_HZ:
-            raise ValueError(f"the ICM-42688-P's SPI runs at most at 24 MHz, not {speed:g} Hz")
+            raise ValueError(
+                f"the ICM-42688-P's SPI runs at most at 24 MHz; bus.speed_hz is {speed / 1e6:g} MHz"
+            )
         need = bus_bits_per_second(v, hires, i2c)
         if speed is not None and need > speed:
             kind = "I2C" if i2c else "SPI"
@@ -216,7 +223,7 @@ class Icm42688pConfig(DeviceBase):
         if v and (g != 2000 or a != 16):
             raise ValueError(
                 "20-bit FIFO packets only work at gyro_range_dps = 2000 and accel_range_g = 16 "
-                f"(configured: {g:g} and {a:g}); set hires = false or use those ranges"
+                f"(configured: {g} and {a}); set hires = false or use those ranges"
             )
         return v
 
@@ -356,6 +363,7 @@ class Icm42688pDriver:
         for bank, reg, val in banked:
             self.dev.write_u8(REG_BANK_SEL, bank)
             self.dev.write_u8(reg, val)
+        yield POWER_ON_WAIT_NS  # no register write within 200 us of turning sensors on
         for bank, reg, val in banked:
             self.dev.write_u8(REG_BANK_SEL, bank)
             got = self.dev.read_u8(reg)
