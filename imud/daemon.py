@@ -30,6 +30,7 @@ from imud.chips.base import ChipSim, DeviceBase, Driver
 from imud.clock import Clock, MonotonicClock, epoch_offset_ns
 from imud.config import ImudConfig
 from imud.device import RETRY_MAX_NS, RETRY_MIN_NS, DeviceRunner, Publish
+from imud.publisher import PublisherThread
 from imud.sdnotify import Notifier
 from imud.zsession import daemon_config
 
@@ -142,14 +143,19 @@ class BusWorker:
 
 
 def _make_publisher(session: zenoh.Session, key: str) -> tuple[Publish, zenoh.Publisher]:
-    # DROP: a slow or stuck subscriber must never stall acquisition; it sees the gap in seq.
+    # BLOCK: subscribers get every batch through transient stalls. It runs on the publisher
+    # thread, never on a bus worker, so acquisition cannot wait for the network.
     pub = session.declare_publisher(
         key,
         encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema("imud.batch.v1"),
-        congestion_control=zenoh.CongestionControl.DROP,
+        congestion_control=zenoh.CongestionControl.BLOCK,
         priority=zenoh.Priority.DATA_HIGH,
     )
     return pub.put, pub
+
+
+def _queued(publisher: PublisherThread, put: Publish, on_drop: Callable[[], None]) -> Publish:
+    return lambda payload: publisher.submit(put, payload, on_drop)
 
 
 class _ChipSelects:
@@ -197,7 +203,11 @@ def _connector(d: DeviceBase, clock: Clock) -> Connect:
 
 
 def build_workers(
-    cfg: ImudConfig, session: zenoh.Session, clock: Clock, offset_ns: int
+    cfg: ImudConfig,
+    session: zenoh.Session,
+    clock: Clock,
+    offset_ns: int,
+    publisher: PublisherThread,
 ) -> tuple[list[BusWorker], list[Any]]:
     """One worker per bus, one runner and publisher per device. Buses open in their workers."""
     prefix = cfg.zenoh.prefix
@@ -211,9 +221,10 @@ def build_workers(
         if isinstance(d.bus, SimBus) and d.sim is not None and d.sim.truth:
             put_truth, tpub = _make_publisher(session, f"{prefix}/{d.name}/sim/truth")
             keep.append(tpub)
-        runner = DeviceRunner(
-            d, None, cal, put, offset_ns, publish_truth=put_truth, now_ns=clock.now_ns
-        )
+        runner = DeviceRunner(d, None, cal, put, offset_ns, now_ns=clock.now_ns)
+        runner.publish = _queued(publisher, put, runner.note_publish_drop)
+        if put_truth is not None:
+            runner.publish_truth = _queued(publisher, put_truth, lambda: None)
         w = workers.get(d.bus.key)
         if w is None:
             w = workers[d.bus.key] = BusWorker(d.bus.key, [], [], _opener(d), clock)
@@ -268,7 +279,11 @@ class Daemon:
         )
         session = await anyio.to_thread.run_sync(zenoh.open, daemon_config(z))
         try:
-            self.workers, keep = build_workers(self.cfg, session, self.clock, epoch_offset_ns())
+            self.publisher = PublisherThread()
+            self.publisher.start()
+            self.workers, keep = build_workers(
+                self.cfg, session, self.clock, epoch_offset_ns(), self.publisher
+            )
             qs = [
                 session.declare_queryable(
                     f"{z.prefix}/daemon/status", lambda q: self._answer(q, self.status())
@@ -298,6 +313,7 @@ class Daemon:
                 for w in self.workers:
                     w.stop.set()
                 tg.cancel_scope.cancel()  # workers finish their current step and return
+            await anyio.to_thread.run_sync(self.publisher.stop)
             del keep, qs
         finally:
             await anyio.to_thread.run_sync(session.close)

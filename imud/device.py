@@ -77,6 +77,7 @@ class DeviceRunner:
         self._starting: Iterator[int] | None = None
         self._phase = 0.0
         self.poll_late_max_ns = 0
+        self.publish_dropped = 0
         self._late_cur_ns = 0
         self._late_window_ns = 0
         self._unpublished_lost = 0
@@ -232,6 +233,10 @@ class DeviceRunner:
             )
             self._loss_unlogged, self._loss_logged_ns = 0, now
 
+    def note_publish_drop(self) -> None:
+        """The publisher's queue was full (a subscriber stuck for seconds): a batch is gone."""
+        self.publish_dropped += 1
+
     def note_lateness(self, late_ns: int, now: int) -> None:
         """How late the bus worker came to this device's poll; the worst over ~10 s is shown
         in status: the scheduling jitter the FIFO has to absorb."""
@@ -292,6 +297,7 @@ class DeviceRunner:
             "bad_registers": c.bad_registers if c else 0,
             "restarts": self.restarts,
             "poll_late_max_ms": round(self.poll_late_max_ns / 1e6, 3),
+            "publish_dropped": self.publish_dropped,
             "temperature_c": None if self.temperature_c is None else round(self.temperature_c, 2),
             "calibration": str(self.calibration.path) if self.calibration else None,
             "last_error": self.last_error,

@@ -27,9 +27,10 @@ def test_check_config_sim_toml() -> None:
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout)
     assert [d["name"] for d in doc["device"]] == ["imu0", "imu1", "icm0"]
-    assert [d["chip"] for d in doc["device"]] == ["mpu6050", "mpu6050"]
-    assert [d["odr_hz"] for d in doc["device"]] == [1000.0, 500.0]
-    assert [d["bus"]["address"] for d in doc["device"]] == [0x68, 0x69]
+    assert [d["chip"] for d in doc["device"]] == ["mpu6050", "mpu6050", "icm42688p"]
+    assert [d["odr_hz"] for d in doc["device"]] == [1000.0, 500.0, 32000.0]
+    assert [d["bus"]["address"] for d in doc["device"][:2]] == [0x68, 0x69]
+    assert doc["device"][2]["bus"]["transport"] == "spi"
     assert doc["zenoh"]["listen"] == ["tcp/127.0.0.1:7447"]
     assert "Traceback" not in r.stderr
 

@@ -63,7 +63,7 @@ def test_32khz_sustained_without_a_lost_sample(tmp_path: Path) -> None:
     rate = (len(seq) - 1) / ((t[-1] - t[0]) / 1e9)
     assert rate == pytest.approx(32000 * 1.006, rel=1e-3)
     assert len(seq) > 7.5 * 32000
-    assert st["lost_samples"] == 0 and st["fifo_overflows"] == 0, st
+    assert st["lost_samples"] == 0 and st["fifo_overflows"] == 0, (st, d.log.read_text())
     assert st["state"] == "running" and st["chip_rate_hz"] == pytest.approx(32192, rel=1e-3)
     assert gyr[:, 2].mean() == pytest.approx(math.radians(100.0), abs=1e-3)  # 1.745 rad/s
     assert np.linalg.norm(acc, axis=1).mean() == pytest.approx(9.80665, abs=0.01)
