@@ -42,6 +42,24 @@ STALL_NS = 10_000_000_000  # a bus worker silent this long is hung: stop petting
 Connect = Callable[[Any], tuple[Driver, ChipSim | None]]
 
 
+def _realtime(priority: int, who: str) -> bool:
+    """SCHED_FIFO for the calling thread (and the threads it creates later)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError as e:
+        log.warning(
+            "%s: cannot run SCHED_FIFO at priority %d (%s): grant CAP_SYS_NICE or "
+            "LimitRTPRIO=%d (the systemd unit does), or run as root; continuing without",
+            who,
+            priority,
+            e.strerror,
+            priority + 1,
+        )
+        return False
+    log.info("%s: SCHED_FIFO at priority %d", who, priority)
+    return True
+
+
 @dataclass
 class BusWorker:
     """Owns one bus: opens it (and reopens it with backoff while it will not open), then runs
@@ -60,18 +78,7 @@ class BusWorker:
     _backoff_ns: int = RETRY_MIN_NS
 
     def _go_realtime(self, priority: int) -> None:
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-            log.info("bus %s: worker runs SCHED_FIFO at priority %d", self.key, priority)
-        except (PermissionError, OSError) as e:
-            log.warning(
-                "bus %s: cannot run SCHED_FIFO at priority %d (%s): grant CAP_SYS_NICE or "
-                "LimitRTPRIO=%d (the systemd unit does), or run as root; continuing without",
-                self.key,
-                priority,
-                e.strerror,
-                priority,
-            )
+        _realtime(priority, f"bus {self.key} worker")
 
     def _retry_later(self, now: int) -> None:
         self._reopen_ns = now + self._backoff_ns

@@ -67,4 +67,4 @@ def test_32khz_sustained_without_a_lost_sample(tmp_path: Path) -> None:
     assert st["state"] == "running" and st["chip_rate_hz"] == pytest.approx(32192, rel=1e-3)
     assert gyr[:, 2].mean() == pytest.approx(math.radians(100.0), abs=1e-3)  # 1.745 rad/s
     assert np.linalg.norm(acc, axis=1).mean() == pytest.approx(9.80665, abs=0.01)
-    assert "SCHED_FIFO" in d.log.read_text()
+    assert "worker: SCHED_FIFO" in d.log.read_text()
