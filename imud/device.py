@@ -272,7 +272,11 @@ class DeviceRunner:
             )
 
     def _update_rate(self, now: int, window_ns: int = 5_000_000_000) -> None:
+        """Delivered samples per second over the last ~5 s, from one point per 100 ms (a
+        point per poll would keep thousands of tuples alive for the GC to walk at 32 kHz)."""
         w = self._rate_window
+        if w and now - w[-1][0] < 100_000_000:
+            return
         w.append((now, self.samples))
         while len(w) > 2 and now - w[1][0] >= window_ns:
             w.popleft()

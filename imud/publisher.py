@@ -19,7 +19,8 @@ log = logging.getLogger("imud.publisher")
 
 
 class PublisherThread:
-    def __init__(self, depth: int = 20_000) -> None:
+    def __init__(self, depth: int = 20_000, realtime_priority: int | None = None) -> None:
+        self.realtime_priority = realtime_priority
         self._q: queue.Queue[tuple[Callable[[bytes], Any], bytes, Any] | None] = queue.Queue(depth)
         self._thread = threading.Thread(target=self._run, name="publisher", daemon=True)
         self.published = 0
@@ -35,6 +36,12 @@ class PublisherThread:
             on_drop()
 
     def _run(self) -> None:
+        if self.realtime_priority:
+            # it takes the GIL for every put: preempted by some other process while holding it,
+            # it would stall the real-time bus workers (priority inversion). Rank just below them.
+            from imud.daemon import _realtime
+
+            _realtime(self.realtime_priority, "publisher")
         while True:
             item = self._q.get()
             if item is None:

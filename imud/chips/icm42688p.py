@@ -295,9 +295,8 @@ class Icm42688pDriver:
         self.packet = PACKET_HIRES if cfg.hires else PACKET
         self.fifo_capacity = FIFO_SIZE // self.packet
         self.nominal_period_ns = 1e9 / cfg.odr_hz
-        # A quarter of the FIFO between polls (1 ms at 32 kHz, where the FIFO lasts 4 ms: with
-        # real-time bus workers a poll comes < 1 ms late; halving it measured worse, as twice
-        # the polls cost twice the interpreter time the other threads wait for)
+        # A quarter of the FIFO between polls: 1 ms at 32 kHz, where the FIFO lasts 4 ms.
+        # Halving it measured no better: twice the polls cost twice the interpreter time.
         self.poll_interval_ns = int(min(50e6, self.nominal_period_ns * self.fifo_capacity / 4))
         self.accel_scale = accel_scale_ms2(cfg.accel_range_g, cfg.hires)
         self.gyro_scale = gyro_scale_rads(cfg.gyro_range_dps, cfg.hires)
