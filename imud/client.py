@@ -36,7 +36,7 @@ class NoDaemon(ConnectionError):
 
 
 def open_session(endpoint: str = DEFAULT_ENDPOINT) -> zenoh.Session:
-    """A client session to one daemon. Multicast scouting is disabled (`client_config`): it talks
+    """A client session to one daemon, with multicast scouting disabled (`client_config`): it talks
     to the given endpoint only. Raises `NoDaemon` if nothing listens there."""
     try:
         return zenoh.open(client_config(endpoint))

@@ -20,8 +20,9 @@ from pydantic import Field, ValidationInfo, field_validator
 from imud.buses.models import I2cBus, SimBus
 from imud.buses.registers import RegisterDevice
 from imud.chips.base import DeviceBase, DeviceIdentityError, DriverCounters, RawBatch
+from imud.chips.checks import RegisterChecker
 from imud.clock import Clock
-from imud.errors import BusError, RegisterMismatch
+from imud.errors import BusError
 
 STANDARD_GRAVITY = 9.80665
 
@@ -302,8 +303,7 @@ class Icm42688pDriver:
         self.gyro_scale = gyro_scale_rads(cfg.gyro_range_dps, cfg.hires)
         self.invalid_packets = 0
         self._plan = self._register_plan()
-        self._check_index = 0
-        self._last_check_ns = 0
+        self._checker = RegisterChecker(dev, self._plan, clock, self.counters)
         self._resync = False
         self._restart_ns: tuple[int, int] | None = None
 
@@ -376,7 +376,7 @@ class Icm42688pDriver:
         yield STARTUP_WAIT_NS  # gyro start-up; packets before it carry the invalid marker
         self._flush()
         self._resync = False
-        self._last_check_ns = self.clock.now_ns()
+        self._checker.restart()
 
     def _flush(self) -> None:
         t0 = self.clock.now_ns()
@@ -411,7 +411,7 @@ class Icm42688pDriver:
         status, count = head[0], int.from_bytes(head[1:3], "big")
         full = bool(status & INT_FIFO_FULL) or count >= FIFO_SIZE - self.packet + 1
         n = min(count, FIFO_SIZE) // self.packet
-        self._check_next_register()
+        self._checker.check_next()
         if n == 0:
             return self._batch(None, t_before, t_after)
         r0 = self.clock.now_ns()
@@ -433,23 +433,6 @@ class Icm42688pDriver:
             self.counters.fifo_overflows += 1
             self._resync, self._restart_ns = True, (r0, r1)
         return batch
-
-    def _check_next_register(self) -> None:
-        now = self.clock.now_ns()
-        if now - self._last_check_ns < 100_000_000:
-            return
-        self._last_check_ns = now
-        reg, want = self._plan[self._check_index]
-        self._check_index = (self._check_index + 1) % len(self._plan)
-        got = self.dev.read_u8(reg)
-        if got != want:
-            got = self.dev.read_u8(reg)  # once more: a garbled transfer is not a changed chip
-        if got != want:
-            self.counters.bad_registers += 1
-            raise RegisterMismatch(
-                0,
-                f"register 0x{reg:02x} reads 0x{got:02x}, configured 0x{want:02x}: reinitialising",
-            )
 
     def stop(self) -> None:
         with contextlib.suppress(BusError):

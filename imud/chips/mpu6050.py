@@ -22,8 +22,8 @@ from imud.chips.base import (
     DeviceIdentityError,
     DriverCounters,
     RawBatch,
-    RegisterMismatch,
 )
+from imud.chips.checks import RegisterChecker
 from imud.clock import Clock
 
 STANDARD_GRAVITY = 9.80665
@@ -176,8 +176,7 @@ class Mpu6050Driver:
         self.accel_scale = accel_scale_ms2(cfg.accel_range_g)
         self.gyro_scale = gyro_scale_rads(cfg.gyro_range_dps)
         self._checked = self._register_plan()
-        self._check_index = 0
-        self._last_check_ns = 0
+        self._checker = RegisterChecker(dev, self._checked, clock, self.counters)
         self._need_reset = False
         self._resync = False
         self._restart_ns: tuple[int, int] | None = None
@@ -228,7 +227,7 @@ class Mpu6050Driver:
                 )
         self._fifo_restart()
         self._resync = False  # a fresh start: the runner rebases its sample clock anyway
-        self._last_check_ns = self.clock.now_ns()
+        self._checker.restart()
 
     def _fifo_restart(self) -> None:
         """Stop the FIFO, empty it, re-enable accel+gyro: the Linux/PX4 recovery sequence.
@@ -282,7 +281,7 @@ class Mpu6050Driver:
             self._fifo_restart()
             return self._batch(_NONE, _NONE, temp, t_before, t_after)
         n = count // SAMPLE_BYTES
-        self._check_next_register()
+        self._checker.check_next()
         if n == 0:
             return self._batch(_NONE, _NONE, temp, t_before, t_after)
         try:
@@ -294,25 +293,6 @@ class Mpu6050Driver:
             raise
         accel, gyro = decode_fifo(data)
         return self._batch(accel, gyro, temp, t_before, t_after)
-
-    def _check_next_register(self) -> None:
-        """Every 100 ms verify one configured register; a mismatch means the chip was reset or
-        glitched, so count it and reconfigure from scratch (as PX4 does)."""
-        now = self.clock.now_ns()
-        if now - self._last_check_ns < 100_000_000:
-            return
-        self._last_check_ns = now
-        reg, want = self._checked[self._check_index]
-        self._check_index = (self._check_index + 1) % len(self._checked)
-        got = self.dev.read_u8(reg)
-        if got != want:
-            got = self.dev.read_u8(reg)  # once more: a garbled transfer is not a changed chip
-        if got != want:
-            self.counters.bad_registers += 1
-            raise RegisterMismatch(
-                0,
-                f"register 0x{reg:02x} reads 0x{got:02x}, configured 0x{want:02x}: reinitialising",
-            )
 
     def stop(self) -> None:
         try:
