@@ -493,3 +493,9 @@ def test_device_named_daemon_is_reserved(tmp_path: Path) -> None:
     text = '[[device]]\nname = "daemon"\nchip = "mpu6050"\nbus = { kind = "sim" }\n'
     msg = only_error(tmp_path, text)
     assert "reserved" in msg and "daemon/status" in msg
+
+
+@pytest.mark.parametrize("path", sorted(Path(__file__).parent.parent.glob("configs/*.toml")))
+def test_every_shipped_config_validates(path: Path) -> None:
+    cfg = load_config(path)
+    assert cfg.device, path
