@@ -62,6 +62,8 @@ class Pipeline:
             raw.resync,
             restart=raw.restart_ns,
             full=raw.fifo_full,
+            ticks=raw.chip_ticks,
+            ticks_modulo=raw.ticks_modulo,
         )
         accel, gyro = calibrate(self.cal, *to_si(raw))
         flags = (FLAG_CALIBRATED if self.cal is not None else 0) | (

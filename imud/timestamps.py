@@ -62,6 +62,8 @@ class SampleClock:
         self.last_ts: int | None = None
         self._pending_resync = False
         self._pending_restart: tuple[int, int] | None = None
+        self._tps: float | None = None  # chip-counter ticks per sample, when a driver gives them
+        self._last_tick: int | None = None
         self._rebase = False
         self._count = 0
         self._seg_n = 0
@@ -157,6 +159,30 @@ class SampleClock:
             (t - self._correction() - self._t_ref - self._my) / self.period + self._k_ref + self._mk
         )
 
+    def _learn_ticks(self, n: int, ticks: npt.NDArray[np.int64], mod: int) -> None:
+        """Ticks per sample of the chip's own counter, from packets inside one batch (always
+        consecutive samples): whatever the tick's unit, it is constant on the chip's clock."""
+        if n >= 2:
+            span = int(ticks[-1] - ticks[0]) % mod
+            if span and span < mod // 2:
+                tps = span / (n - 1)
+                self._tps = tps if self._tps is None else 0.9 * self._tps + 0.1 * tps
+        self._last_tick = int(ticks[-1])
+
+    def _tick_index(self, k_host: int, n: int, ticks: npt.NDArray[np.int64], mod: int) -> int:
+        """After a gap, count the samples in it from the chip's counter (exact), using the host
+        estimate only to choose how often the counter wrapped meanwhile."""
+        if self._tps is None or self._last_tick is None or self.k_last < 0:
+            return k_host
+        gap = (int(ticks[0]) - self._last_tick) % mod
+        per_wrap = mod / self._tps
+        first_host = k_host - n + 1
+        wraps = max(0, round((first_host - self.k_last - gap / self._tps) / per_wrap))
+        first = self.k_last + round((gap + wraps * mod) / self._tps)
+        if abs(first - first_host) > per_wrap / 4:  # host and chip disagree: keep the host's
+            return k_host
+        return first + n - 1
+
     def _resync_index(
         self, n: int, t_before: int, t_after: int, restart: tuple[int, int] | None
     ) -> int:
@@ -188,6 +214,7 @@ class SampleClock:
         self._recent.clear()
         self._history.clear()
         self._bounds = (1.0, 0.0)
+        self._last_tick = None  # the chip's counter restarted with it
         self._rebase = True
         self._pending_resync = False
 
@@ -199,6 +226,8 @@ class SampleClock:
         resync: bool = False,
         restart: tuple[int, int] | None = None,
         full: bool = False,
+        ticks: npt.NDArray[np.int64] | None = None,
+        ticks_modulo: int = 0,
     ) -> Stamped:
         """Stamp a batch of `n` samples whose newest was latched between the two host times.
 
@@ -220,6 +249,7 @@ class SampleClock:
                 k_gone = self._index_before(restart[0])
                 if k_gone > self.k_last:
                     lost, self.k_last = k_gone - self.k_last, k_gone
+                    self._last_tick = None  # k_last moved without a tick to go with it
             return Stamped(self.k_last + 1, lost, np.zeros(0, dtype=np.int64))
         self._pending_resync = False
         self._pending_restart = None
@@ -235,6 +265,10 @@ class SampleClock:
             k_new = max(self._resync_index(n, t_before, t_after, restart), self.k_last + n)
         else:
             k_new = self.k_last + n
+        if resync and ticks is not None and ticks_modulo:
+            k_new = max(self._tick_index(k_new, n, ticks, ticks_modulo), self.k_last + n)
+        if ticks is not None and ticks_modulo:
+            self._learn_ticks(n, ticks, ticks_modulo)
         first = k_new - n + 1
         lost = first - (self.k_last + 1) if self.k_last >= 0 else 0
         if resync and restart is not None and self._count:

@@ -11,12 +11,21 @@ import threading
 import numpy as np
 
 from imud.chips.base import ChipSim
+from imud.clock import VirtualClock
 
 
 class SimSpiDev:
     def __init__(
-        self, chip: ChipSim, fault_rate: float = 0.0, seed: int = 0, dummy_bytes: int = 0
+        self,
+        chip: ChipSim,
+        fault_rate: float = 0.0,
+        seed: int = 0,
+        dummy_bytes: int = 0,
+        transfer_time: tuple[VirtualClock, int, int] | None = None,
     ) -> None:
+        """`transfer_time = (virtual clock, ns per transfer, ns per byte)` makes each transfer
+        take bus time at virtual time (in real time the host's own call takes the time)."""
+        self.transfer_time = transfer_time
         self.chip = chip
         self.fault_rate = fault_rate
         self.dummy = dummy_bytes  # bytes the chip clocks out before register data on reads
@@ -31,16 +40,26 @@ class SimSpiDev:
             return []
         with self._lock:
             self.transfers += 1
+            if self.transfer_time is not None:  # the chip answers mid-transfer
+                clock, fixed, per_byte = self.transfer_time
+                clock.advance((fixed + per_byte * len(values)) // 2)
             first, rest = values[0], values[1:]
             fault = self.fault_rate > 0 and self._rng.random() < self.fault_rate
             if first & 0x80:  # read: register data after the address byte (and dummies)
                 n = len(rest) - self.dummy
                 data = self.chip.read(first & 0x7F, max(n, 0))
                 rx = [0] * (1 + self.dummy) + list(data)
+                self._finish(len(values))
                 return [0xFF] * len(values) if fault else rx
             if not fault:  # a write lost to a fault simply does not happen
                 self.chip.write(first & 0x7F, bytes(rest))
+            self._finish(len(values))
             return [0] * len(values)
+
+    def _finish(self, nbytes: int) -> None:
+        if self.transfer_time is not None:
+            clock, fixed, per_byte = self.transfer_time
+            clock.advance((fixed + per_byte * nbytes) - (fixed + per_byte * nbytes) // 2)
 
     def close(self) -> None:
         pass
