@@ -32,7 +32,6 @@ import re
 import shlex
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -42,27 +41,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from common import CALIBRATION_TOML, free_port
+
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 PREFIX = "imud"
-
-CALIBRATION_TOML = """\
-version = 1
-
-[accel]  # m/s^2, dimensionless scale
-bias = [0.12, -0.08, 0.21]
-scale = [1.004, 0.997, 1.002]
-
-[gyro]  # rad/s
-bias = [0.011, -0.007, 0.004]
-scale = [1.001, 0.999, 1.003]
-"""
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
 
 
 def imud_executable() -> str:

@@ -42,7 +42,6 @@ import json
 import os
 import pstats
 import shlex
-import socket
 import statistics
 import subprocess
 import sys
@@ -54,16 +53,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from common import CALIBRATION_TOML, free_port
+
 PREFIX = "imud"
 DONE_KEY = f"{PREFIX}/bench/done"
 
 
 # --- helpers --------------------------------------------------------------------------------------
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
 
 
 @dataclass
@@ -84,19 +80,6 @@ def timed(fn: Callable[..., Any], acc: Acc) -> Callable[..., Any]:
             acc.calls += 1
 
     return wrapper
-
-
-CALIBRATION_TOML = """\
-version = 1
-
-[accel]  # m/s^2, dimensionless scale
-bias = [0.12, -0.08, 0.21]
-scale = [1.004, 0.997, 1.002]
-
-[gyro]  # rad/s
-bias = [0.011, -0.007, 0.004]
-scale = [1.001, 0.999, 1.003]
-"""
 
 
 # --- one timed run --------------------------------------------------------------------------------

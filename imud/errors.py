@@ -7,6 +7,16 @@ class BusError(OSError):
     """A transfer failed (NAK, timeout, short read); the driver resyncs on the next read."""
 
 
+def open_error(node: str, e: OSError, enable: str, group: str) -> BusError:
+    """A device node that will not open, with the fix: enable the bus, or join its group."""
+    hint = (
+        enable
+        if isinstance(e, FileNotFoundError)
+        else f"add the daemon's user to the {group} group"
+    )
+    return BusError(e.errno, f"cannot open {node}: {e.strerror}; {hint}")
+
+
 class RegisterMismatch(BusError):
     """A configured register no longer holds its value: the chip must be reinitialised."""
 

@@ -7,7 +7,7 @@ from typing import Any, Protocol
 from smbus2 import i2c_msg
 
 from imud.buses.models import I2cBus
-from imud.errors import BusError
+from imud.errors import BusError, open_error
 
 SMBUS_BLOCK_MAX = 32
 
@@ -71,10 +71,6 @@ def open_smbus(cfg: I2cBus) -> SMBusLike:
     try:
         bus: SMBusLike = SMBus(cfg.bus)
     except (FileNotFoundError, PermissionError) as e:
-        hint = (
-            "enable I2C (dtparam=i2c_arm=on) and load i2c-dev"
-            if isinstance(e, FileNotFoundError)
-            else "add the daemon's user to the i2c group"
-        )
-        raise BusError(e.errno, f"cannot open {cfg.key}: {e.strerror}; {hint}") from e
+        enable = "enable I2C (dtparam=i2c_arm=on) and load i2c-dev"
+        raise open_error(cfg.key, e, enable, "i2c") from e
     return bus

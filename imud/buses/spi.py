@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Protocol
 
 from imud.buses.models import SpiBus
-from imud.errors import BusError
+from imud.errors import BusError, open_error
 
 READ = 0x80
 MAX_TRANSFER = 4096  # spidev's default buffer size (module parameter bufsiz)
@@ -68,12 +68,7 @@ def open_spidev(cfg: SpiBus) -> SpiDevLike:
     try:
         dev.open_path(cfg.path)
     except (FileNotFoundError, PermissionError) as e:
-        hint = (
-            "enable SPI (dtparam=spi=on)"
-            if isinstance(e, FileNotFoundError)
-            else "add the daemon's user to the spi group"
-        )
-        raise BusError(e.errno, f"cannot open {cfg.path}: {e.strerror}; {hint}") from e
+        raise open_error(cfg.path, e, "enable SPI (dtparam=spi=on)", "spi") from e
     dev.mode = cfg.mode
     dev.max_speed_hz = cfg.speed_hz
     spi: SpiDevLike = dev
