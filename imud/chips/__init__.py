@@ -12,7 +12,7 @@ def _mpu6050_driver(cfg: Any, transport: Any, clock: Clock) -> Driver:
     from imud.buses.registers import register_device
     from imud.chips.mpu6050 import Mpu6050Driver
 
-    return Mpu6050Driver(cfg, register_device(cfg.bus, transport), clock)  # type: ignore[arg-type]
+    return Mpu6050Driver(cfg, register_device(cfg.bus, transport), clock)
 
 
 def _mpu6050_sim(cfg: Any, clock: Clock) -> Any:

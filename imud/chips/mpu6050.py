@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import Field, ValidationInfo, field_validator
 
-from imud.buses.i2c import I2CDevice
+from imud.buses.registers import RegisterDevice
 from imud.chips.base import (
     BusError,
     DeviceBase,
@@ -165,7 +165,7 @@ class Mpu6050Driver:
 
     fifo_capacity = FIFO_SIZE // SAMPLE_BYTES
 
-    def __init__(self, cfg: Mpu6050Config, dev: I2CDevice, clock: Clock) -> None:
+    def __init__(self, cfg: Mpu6050Config, dev: RegisterDevice, clock: Clock) -> None:
         self.cfg = cfg
         self.dev = dev
         self.clock = clock

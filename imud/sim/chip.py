@@ -59,10 +59,6 @@ class SampledChip:
         self.grid_origin_ns = float(now)
         self.next_k = 1
 
-    def true_temperature(self, now_ns: int | None = None) -> float:
-        t = (self.clock.now_ns() if now_ns is None else now_ns) - self.t_origin_ns
-        return float(self.temp.at(np.array([t / 1e9]))[0])
-
     def advance(self) -> None:
         """Produce every sample due up to now, in chunks."""
         if not self.sampling:
