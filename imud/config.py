@@ -95,19 +95,21 @@ class ImudConfig(BaseModel):
                     "names must be unique"
                 )
             names[d.name] = i
-            slot = d.bus.slot
-            if slot in slots:
-                raise ValueError(
-                    f"device[{i}] {d.name!r}: {' '.join(slot)} is already taken by {slots[slot]!r}"
-                )
-            slots[slot] = d.name
             transports = CHIPS[d.chip].transports
-            kind = d.bus.transport if isinstance(d.bus, SimBus) else d.bus.kind
-            if kind not in transports:
-                raise ValueError(
-                    f"device[{i}] {d.name!r}: a {d.chip} cannot be on a {kind} bus; "
-                    f"it works over: {', '.join(transports)}"
-                )
+            for bus in d.die_buses():
+                slot = bus.slot
+                if slot in slots:
+                    raise ValueError(
+                        f"device[{i}] {d.name!r}: {' '.join(slot)} is already taken by "
+                        f"{slots[slot]!r}"
+                    )
+                slots[slot] = d.name
+                kind = bus.transport if isinstance(bus, SimBus) else bus.kind
+                if kind not in transports:
+                    raise ValueError(
+                        f"device[{i}] {d.name!r}: a {d.chip} cannot be on a {kind} bus; "
+                        f"it works over: {', '.join(transports)}"
+                    )
             if d.sim is not None and not isinstance(d.bus, SimBus):
                 raise ValueError(
                     f'device[{i}] {d.name!r}: a [device.sim] table needs bus.kind = "sim" '

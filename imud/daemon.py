@@ -25,7 +25,6 @@ import zenoh
 from imud import __version__
 from imud.buses.models import I2cBus, SimBus, SpiBus
 from imud.calibration import load_calibration
-from imud.chips import CHIPS
 from imud.chips.base import ChipSim, DeviceBase, Driver
 from imud.clock import Clock, MonotonicClock, epoch_offset_ns
 from imud.config import ImudConfig
@@ -185,28 +184,9 @@ def _opener(d: DeviceBase) -> Callable[[], Any]:
 
 def _connector(d: DeviceBase, clock: Clock) -> Connect:
     """Device on an open bus -> (driver, simulator or None)."""
-    spec = CHIPS[d.chip]
+    from imud.buses.connect import connect
 
-    def connect(shared: Any) -> tuple[Driver, ChipSim | None]:
-        from imud.buses.spi import open_spidev
-        from imud.sim.spi import SimSpiDev
-
-        b = d.bus
-        sim = None
-        transport = shared
-        if isinstance(b, SimBus):
-            sim = spec.make_sim(d, clock)
-            faults = d.sim.nak_rate if d.sim else 0.0
-            if b.transport == "spi":
-                seed = d.sim.seed if d.sim else 0
-                transport = SimSpiDev(sim, faults, seed, getattr(sim, "spi_dummy_bytes", 0))
-            else:
-                shared.attach(b.address, sim, faults)
-        elif isinstance(b, SpiBus):
-            transport = open_spidev(b)
-        return spec.make_driver(d, transport, clock), sim
-
-    return connect
+    return lambda shared: connect(d, shared, clock)
 
 
 def build_workers(

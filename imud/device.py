@@ -134,6 +134,9 @@ class DeviceRunner:
             self._sclock = SampleClock(self.driver.nominal_period_ns)
         else:  # a re-initialised chip restarts its sample grid; keep seq counting across it
             self._sclock.rebase()
+        bind = getattr(self.driver, "bind_clock", None)
+        if bind is not None:  # a driver that stamps its own samples (two dies) uses this clock
+            bind(self._sclock)
         self.pipeline = Pipeline(self._sclock, self.calibration, self.epoch_offset_ns)
         if self.state == "error":
             log.warning("%s: recovered after: %s", self.cfg.name, self.last_error)

@@ -55,16 +55,18 @@ class Pipeline:
         self.epoch_offset_ns = epoch_offset_ns
 
     def process(self, raw: RawBatch) -> SampleBatch:
-        st = self.clock.update(
-            raw.n,
-            raw.t_before_ns,
-            raw.t_after_ns,
-            raw.resync,
-            restart=raw.restart_ns,
-            full=raw.fifo_full,
-            ticks=raw.chip_ticks,
-            ticks_modulo=raw.ticks_modulo,
-        )
+        st = raw.stamps
+        if st is None:  # the usual case: one die, stamped from its reads
+            st = self.clock.update(
+                raw.n,
+                raw.t_before_ns,
+                raw.t_after_ns,
+                raw.resync,
+                restart=raw.restart_ns,
+                full=raw.fifo_full,
+                ticks=raw.chip_ticks,
+                ticks_modulo=raw.ticks_modulo,
+            )
         accel, gyro = calibrate(self.cal, *to_si(raw))
         flags = (FLAG_CALIBRATED if self.cal is not None else 0) | (
             FLAG_RESYNC if st.lost_before else 0

@@ -8,12 +8,11 @@ from typing import Any
 
 import numpy as np
 
-from imud.chips import CHIPS
+from imud.buses.connect import connect
 from imud.clock import VirtualClock
 from imud.config import parse_config
 from imud.device import DeviceRunner
 from imud.sim.i2c import SimI2CBus
-from imud.sim.spi import SimSpiDev
 from imud.wire import Batch, decode
 
 
@@ -52,21 +51,13 @@ class Rig:
 
 def make_rig(device: dict[str, Any], sim: dict[str, Any] | None = None) -> Rig:
     """Any chip on a simulated I2C bus, or on SPI with `"bus": {"kind": "sim", "transport":
-    "spi"}`, driven by the daemon's own DeviceRunner at virtual time."""
+    "spi"}`, wired as the daemon wires it and driven by its DeviceRunner at virtual time."""
     d = {"name": "t0", "chip": "mpu6050", "bus": {"kind": "sim"}, **device}
     d["sim"] = {"truth": True, **(sim or {})}
     cfg: Any = parse_config({"device": [d]}).device[0]
     clock = VirtualClock()
     bus = SimI2CBus()
-    spec = CHIPS[cfg.chip]
-    chip = spec.make_sim(cfg, clock)
-    assert cfg.sim is not None
-    if cfg.bus.transport == "spi":
-        transport: Any = SimSpiDev(chip, cfg.sim.nak_rate, cfg.sim.seed)
-    else:
-        bus.attach(cfg.bus.address, chip, cfg.sim.nak_rate)
-        transport = bus
-    driver = spec.make_driver(cfg, transport, clock)
+    driver, chip = connect(cfg, bus, clock)
     rig = Rig(cfg, clock, bus, chip, driver, None, [], [])  # type: ignore[arg-type]
     rig.runner = DeviceRunner(
         cfg,

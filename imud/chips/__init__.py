@@ -34,7 +34,27 @@ def _icm42688p_sim(cfg: Any, clock: Clock) -> Any:
     return Icm42688pSim(cfg.sim, clock)
 
 
+def _bmi088_driver(cfg: Any, transport: Any, clock: Clock) -> Driver:
+    from imud.buses.registers import register_device
+    from imud.chips.bmi088 import Bmi088Driver
+
+    acc, gyr = transport  # one transport per die: the accel's, then the gyro's
+    return Bmi088Driver(
+        cfg,
+        register_device(cfg.bus, acc, spi_dummy_bytes=1),  # the accel die's dummy byte
+        register_device(cfg.gyro_bus, gyr),
+        clock,
+    )
+
+
+def _bmi088_sim(cfg: Any, clock: Clock) -> Any:
+    from imud.sim.bmi088 import Bmi088Sim
+
+    return Bmi088Sim(cfg.sim, clock)
+
+
 def _specs() -> dict[str, ChipSpec]:
+    from imud.chips.bmi088 import Bmi088Config
     from imud.chips.icm42688p import Icm42688pConfig
     from imud.chips.mpu6050 import Mpu6050Config
 
@@ -43,6 +63,7 @@ def _specs() -> dict[str, ChipSpec]:
         "icm42688p": ChipSpec(
             "icm42688p", Icm42688pConfig, _icm42688p_driver, _icm42688p_sim, ("spi", "i2c")
         ),
+        "bmi088": ChipSpec("bmi088", Bmi088Config, _bmi088_driver, _bmi088_sim, ("spi", "i2c")),
     }
 
 

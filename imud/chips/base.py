@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 from imud.buses.models import Bus
 from imud.errors import BusError, DeviceIdentityError, RegisterMismatch
 from imud.sim.settings import SimSettings
+from imud.timestamps import Stamped
 
 __all__ = ["BusError", "DeviceIdentityError", "RegisterMismatch"]
 
@@ -42,6 +43,10 @@ class DeviceBase(BaseModel):
             return Path(base) / v
         return v
 
+    def die_buses(self) -> list[Bus]:
+        """Where each die of the chip is wired; most chips are one die on `bus`."""
+        return [self.bus]
+
 
 @dataclass(slots=True)
 class RawBatch:
@@ -55,7 +60,7 @@ class RawBatch:
     filled up, `fifo_full` is set and `restart_ns` brackets the read that made room again.
     """
 
-    accel: npt.NDArray[np.int32]  # (N, 3) counts
+    accel: npt.NDArray[Any]  # (N, 3) counts (int32; float64 when interpolated between dies)
     gyro: npt.NDArray[np.int32]  # (N, 3) counts
     temperature_c: npt.NDArray[np.float64]  # (N,)
     accel_scale: float  # m/s^2 per LSB
@@ -71,6 +76,9 @@ class RawBatch:
     # per-sample chip clock counter (e.g. the ICM-42688-P FIFO timestamp), modulo `ticks_modulo`
     chip_ticks: npt.NDArray[np.int64] | None = None
     ticks_modulo: int = 0
+    # set by drivers that stamp their own samples (two dies on two clocks, see imud.pairing):
+    # the pipeline then uses these instead of fitting the sample clock itself
+    stamps: Stamped | None = None
 
     @property
     def n(self) -> int:

@@ -43,6 +43,10 @@ class SimSpiDev:
             if self.transfer_time is not None:  # the chip answers mid-transfer
                 clock, fixed, per_byte = self.transfer_time
                 clock.advance((fixed + per_byte * len(values)) // 2)
+            selected = getattr(self.chip, "spi_selected", None)
+            if selected is not None and not selected():  # the chip was not in SPI mode yet
+                self._finish(len(values))
+                return [0] * len(values)
             first, rest = values[0], values[1:]
             fault = self.fault_rate > 0 and self._rng.random() < self.fault_rate
             if first & 0x80:  # read: register data after the address byte (and dummies)

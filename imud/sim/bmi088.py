@@ -1,0 +1,340 @@
+"""Register-level BMI088 simulator: two dies, each on its own oscillator, one physical body.
+
+Accel die: starts in I2C mode and suspended; a first SPI access only switches it to SPI (its
+answer is garbage), and every SPI read clocks out one dummy byte first; soft reset (1 ms busy)
+and FIFO flush through 0x7E; power registers need 5 ms before the next write takes; 1024-byte
+framed FIFO (7-byte accel frames, a skip frame counting frames an overflow overwrote in stream
+mode, a sensortime frame and 0x80 over-read bytes past the end); the 24-bit sensortime counter;
+the temperature register. Gyro die: soft reset (30 ms busy), range and bandwidth/ODR, 100-frame
+FIFO in bypass / FIFO (stop when full) / stream mode with the overrun bit.
+
+Modelled behaviour beyond the facts sheet, stated so it can be checked against silicon: writes
+to unknown or read-only registers and out-of-range codes are ignored (the chip keeps the old
+value); a partially read FIFO frame stays in the FIFO; the temperature register updates every
+1.28 s; the gyro's FIFO_CONFIG_1 write clears overrun but keeps the frames.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from imud.chips import bmi088_fifo as f
+from imud.chips.bmi088 import ACCEL_ODRS, GYRO_MODES
+from imud.clock import Clock
+from imud.sim.chip import SampledChip
+from imud.sim.physics import ChipFigures, ErrorModel, quantise
+from imud.sim.settings import SimSettings
+
+# Noise densities and gyro bias stability from seed-facts.md; the other spreads are typical
+# turn-on figures of this chip class, moderated
+FIGURES = ChipFigures(
+    accel_noise_ug_rthz=175.0,
+    gyro_noise_dps_rthz=0.014,
+    accel_bias_mg=20.0,
+    gyro_bias_dps=0.5,
+    accel_bias_instability_ug=40.0,
+    gyro_bias_instability_dph=2.0,
+    scale_error=0.005,
+    misalignment_deg=0.3,
+    accel_temp_drift_mg_per_c=0.2,
+    gyro_temp_drift_dps_per_c=0.015,
+)
+
+ACC_RESET_BUSY_NS = 1_000_000
+GYR_RESET_BUSY_NS = 30_000_000
+POWER_SETTLE_NS = 5_000_000
+TEMP_UPDATE_NS = 1_280_000_000
+ACC_FRAMES_MAX = f.ACC_FIFO_SIZE // 7  # 146 frames; with a skip frame, 1024 bytes
+ACC_ODR_BY_CODE = {code: hz for hz, code in ACCEL_ODRS.items()}
+GYRO_FIFO_BYTES = f.GYR_FIFO_FRAMES * f.GYR_FRAME
+
+_ACC_DEFAULTS = {
+    f.ACC_CHIP_ID: f.ACC_CHIP_ID_VALUE, f.ACC_CONF: 0xA8, f.ACC_RANGE: 0x01,
+    f.ACC_FIFO_CONFIG_0: 0x02, f.ACC_FIFO_CONFIG_1: 0x10, f.ACC_PWR_CONF: 0x03,
+    f.ACC_PWR_CTRL: 0x00, 0x45: 0x80, 0x46: 0x88, 0x47: 0x02,
+}  # fmt: skip
+_ACC_WRITABLE = {f.ACC_CONF, f.ACC_RANGE, 0x45, 0x46, 0x47, f.ACC_FIFO_CONFIG_0,
+                 f.ACC_FIFO_CONFIG_1, 0x53, 0x54, 0x58, f.ACC_PWR_CONF, f.ACC_PWR_CTRL}  # fmt: skip
+_GYR_DEFAULTS = {f.GYR_CHIP_ID: f.GYR_CHIP_ID_VALUE, f.GYR_BANDWIDTH: 0x80}
+_GYR_WRITABLE = {f.GYR_RANGE, f.GYR_BANDWIDTH, f.GYR_LPM1, f.GYR_INT_CTRL, 0x16, 0x18, 0x1E,
+                 f.GYR_FIFO_CONFIG_0, f.GYR_FIFO_CONFIG_1}  # fmt: skip
+
+
+def temperature_bytes(temp_c: float) -> tuple[int, int]:
+    """TEMP_MSB, TEMP_LSB for a temperature: 11-bit two's complement, 0.125 C/LSB, 0 at 23 C."""
+    s11 = max(-1024, min(1023, round((temp_c - 23.0) / 0.125)))
+    u11 = s11 & 0x7FF
+    return u11 >> 3, (u11 & 0x7) << 5
+
+
+class Bmi088AccelSim(SampledChip):
+    spi_dummy_bytes = 1
+
+    def __init__(self, settings: SimSettings, clock: Clock) -> None:
+        super().__init__(settings, clock, FIGURES)
+        self.frames_dropped = 0
+        self._power_on_reset()
+
+    def _power_on_reset(self) -> None:
+        self.regs = bytearray(128)
+        for reg, val in _ACC_DEFAULTS.items():
+            self.regs[reg] = val
+        self.spi_mode = False
+        self.fifo = bytearray()
+        self.skipped = 0
+        self.sampling = False
+        self.busy_until_ns = 0
+        self.settle_until_ns = 0
+        self.latest = np.zeros(3, dtype=np.int32)
+        self.drdy = False
+        self.temp_reg = temperature_bytes(self.temp.at(np.zeros(1))[0])
+        self.temp_next_ns = self.clock.now_ns() + TEMP_UPDATE_NS
+        self._anchor(self.clock.now_ns())
+
+    def spi_selected(self) -> bool:
+        """A chip-select edge: the first one after power-on or reset only switches to SPI."""
+        if self.spi_mode:
+            return True
+        self.spi_mode = True
+        return False
+
+    @property
+    def rate_hz(self) -> float:
+        return ACC_ODR_BY_CODE.get(self.regs[f.ACC_CONF] & 0x0F, 100.0) * (1 + self.clock_error)
+
+    def _emit(
+        self,
+        t_ns: npt.NDArray[np.int64],
+        fm: npt.NDArray[np.float64],
+        wm: npt.NDArray[np.float64],
+        temp: npt.NDArray[np.float64],
+    ) -> None:
+        lsb = f.accel_scale_ms2(f.ACCEL_RANGES_G[self.regs[f.ACC_RANGE] & 3])
+        acc = quantise(fm, lsb)
+        self.latest = acc[-1]
+        self.drdy = True
+        if t_ns[-1] >= self.temp_next_ns:
+            self.temp_reg = temperature_bytes(float(temp[-1]))
+            self.temp_next_ns += TEMP_UPDATE_NS * max(
+                1, math.ceil((int(t_ns[-1]) - self.temp_next_ns) / TEMP_UPDATE_NS)
+            )
+        if not self.regs[f.ACC_FIFO_CONFIG_1] & 0x40:
+            return
+        n = acc.shape[0]
+        frames = np.empty((n, 7), dtype=np.uint8)
+        frames[:, 0] = f.HDR_ACCEL
+        frames[:, 1:] = acc.astype("<i2").view(np.uint8).reshape(n, 6)
+        room = ACC_FRAMES_MAX - len(self.fifo) // 7
+        if self.regs[f.ACC_FIFO_CONFIG_0] & 0x01:  # FIFO mode: stop when full
+            self.fifo += frames[:room].tobytes()
+            self.frames_dropped += max(0, n - room)
+            return
+        self.fifo += frames.tobytes()  # stream mode: the oldest frames make room
+        excess = len(self.fifo) // 7 - ACC_FRAMES_MAX
+        if excess > 0:
+            del self.fifo[: 7 * excess]
+            self.skipped += excess
+            self.frames_dropped += excess
+
+    def _sensortime(self) -> int:
+        chip_ns = (self.clock.now_ns() - self.t_origin_ns) * (1 + self.clock_error)
+        return int(chip_ns / (f.SENSORTIME_S_PER_LSB * 1e9)) & 0xFFFFFF
+
+    def _fifo_read(self, length: int) -> bytes:
+        out = bytearray()
+        if self.skipped and length >= 2:
+            out += bytes([f.HDR_SKIP, min(self.skipped, 0xFF)])
+            self.skipped = 0
+        whole = min(len(self.fifo), (length - len(out)) // 7 * 7)
+        out += self.fifo[:whole]
+        del self.fifo[:whole]
+        rest = length - len(out)
+        if self.fifo:  # a frame cut short by the read length stays for the next read
+            out += self.fifo[:rest]
+        elif rest >= 4:
+            st = self._sensortime()
+            out += bytes([f.HDR_SENSORTIME, st & 0xFF, st >> 8 & 0xFF, st >> 16])
+        return bytes(out.ljust(length, bytes([f.HDR_OVER_READ])))
+
+    def read(self, register: int, length: int) -> bytes:
+        if self.clock.now_ns() < self.busy_until_ns:
+            return bytes(length)
+        self.advance()
+        if register == f.ACC_FIFO_DATA:
+            return self._fifo_read(length)
+        image = bytearray(self.regs)
+        image[f.ACC_STATUS] = 0x80 if self.drdy else 0
+        image[f.ACC_DATA : f.ACC_DATA + 6] = self.latest.astype("<i2").tobytes()
+        st = self._sensortime()
+        image[f.SENSORTIME_0 : f.SENSORTIME_0 + 3] = st.to_bytes(3, "little")
+        image[f.TEMP_MSB], image[f.TEMP_MSB + 1] = self.temp_reg
+        size = len(self.fifo) + (2 if self.skipped else 0)
+        image[f.FIFO_LENGTH_0 : f.FIFO_LENGTH_0 + 2] = size.to_bytes(2, "little")
+        end = min(register + length, len(image))
+        if register <= f.ACC_STATUS < end:
+            self.drdy = False
+        return bytes(image[register:end]) + bytes(register + length - end)
+
+    def write(self, register: int, data: bytes) -> None:
+        if self.clock.now_ns() < self.busy_until_ns:
+            return
+        self.advance()
+        for i, value in enumerate(data):
+            self._write_one(register + i, value)
+
+    def _write_one(self, reg: int, value: int) -> None:
+        now = self.clock.now_ns()
+        if reg == f.ACC_SOFTRESET:
+            if value == f.SOFTRESET_CMD:
+                self._power_on_reset()
+                self.busy_until_ns = now + ACC_RESET_BUSY_NS
+            elif value == f.ACC_FIFO_FLUSH_CMD:
+                self.fifo.clear()
+                self.skipped = 0
+            return
+        if reg not in _ACC_WRITABLE or now < self.settle_until_ns:
+            return
+        if reg == f.ACC_CONF and (value & 0x0F) not in ACC_ODR_BY_CODE:
+            return  # an invalid ODR code: the chip flags an error and keeps its setting
+        if reg == f.ACC_PWR_CONF and value not in (0x00, 0x03):
+            return
+        if reg == f.ACC_PWR_CTRL and value not in (0x00, 0x04):
+            return
+        old = self.regs[reg]
+        self.regs[reg] = value | (0x02 if reg == f.ACC_FIFO_CONFIG_0 else 0)
+        if reg in (f.ACC_PWR_CONF, f.ACC_PWR_CTRL) and old != value:
+            self.settle_until_ns = now + POWER_SETTLE_NS
+            on = self.regs[f.ACC_PWR_CTRL] == 0x04 and self.regs[f.ACC_PWR_CONF] == 0x00
+            if on and not self.sampling:
+                self._anchor(now)
+            self.sampling = on
+        elif reg == f.ACC_CONF and (old ^ value) & 0x0F:
+            self._anchor(now)
+
+
+class Bmi088GyroSim(SampledChip):
+    spi_dummy_bytes = 0
+
+    def __init__(self, settings: SimSettings, clock: Clock, t_origin_ns: int) -> None:
+        super().__init__(settings, clock, FIGURES)
+        self.t_origin_ns = t_origin_ns  # one body: the same physics time as the accel die
+        self.errors = ErrorModel(FIGURES, settings, stream=1)  # its own oscillator and noise
+        self.clock_error = self.errors.clock_error
+        self.frames_dropped = 0
+        self._power_on_reset(busy_ns=0)
+
+    def _power_on_reset(self, busy_ns: int) -> None:
+        self.regs = bytearray(128)
+        for reg, val in _GYR_DEFAULTS.items():
+            self.regs[reg] = val
+        self.fifo = bytearray()
+        self.overrun = False
+        self.latest = np.zeros(3, dtype=np.int32)
+        now = self.clock.now_ns()
+        self.busy_until_ns = now + busy_ns
+        self.sampling = True  # normal mode out of reset
+        self._anchor(now + busy_ns)
+
+    @property
+    def rate_hz(self) -> float:
+        odr, _ = GYRO_MODES[self.regs[f.GYR_BANDWIDTH] & 0x07]
+        return odr * (1 + self.clock_error)
+
+    def _emit(
+        self,
+        t_ns: npt.NDArray[np.int64],
+        fm: npt.NDArray[np.float64],
+        wm: npt.NDArray[np.float64],
+        temp: npt.NDArray[np.float64],
+    ) -> None:
+        gyr = quantise(wm, f.gyro_scale_rads(f.GYRO_RANGES_DPS[self.regs[f.GYR_RANGE]]))
+        self.latest = gyr[-1]
+        mode = self.regs[f.GYR_FIFO_CONFIG_1] >> 6
+        if mode == 0:
+            return
+        frames = gyr.astype("<i2").tobytes()
+        room = GYRO_FIFO_BYTES - len(self.fifo)
+        if len(frames) > room:
+            self.overrun = True
+            self.frames_dropped += (len(frames) - room) // f.GYR_FRAME
+        if mode == 1:  # FIFO mode: stop when full
+            self.fifo += frames[:room]
+        else:  # stream: the oldest frames make room
+            self.fifo += frames
+            del self.fifo[: max(0, len(self.fifo) - GYRO_FIFO_BYTES)]
+
+    def read(self, register: int, length: int) -> bytes:
+        if self.clock.now_ns() < self.busy_until_ns:
+            return bytes(length)
+        self.advance()
+        if register == f.GYR_FIFO_DATA:
+            whole = min(len(self.fifo), length // f.GYR_FRAME * f.GYR_FRAME)
+            out = bytes(self.fifo[:whole])
+            del self.fifo[:whole]
+            return out.ljust(length, b"\0")
+        image = bytearray(self.regs)
+        image[f.GYR_DATA : f.GYR_DATA + 6] = self.latest.astype("<i2").tobytes()
+        image[f.GYR_FIFO_STATUS] = (0x80 if self.overrun else 0) | len(self.fifo) // f.GYR_FRAME
+        end = min(register + length, len(image))
+        return bytes(image[register:end]) + bytes(register + length - end)
+
+    def write(self, register: int, data: bytes) -> None:
+        if self.clock.now_ns() < self.busy_until_ns:
+            return
+        self.advance()
+        for i, value in enumerate(data):
+            self._write_one(register + i, value)
+
+    def _write_one(self, reg: int, value: int) -> None:
+        if reg == f.GYR_SOFTRESET:
+            if value == f.SOFTRESET_CMD:
+                self._power_on_reset(GYR_RESET_BUSY_NS)
+            return
+        if reg not in _GYR_WRITABLE:
+            return
+        if reg == f.GYR_RANGE and value > 4:
+            return
+        if reg == f.GYR_LPM1 and value not in (0x00, 0x20, 0x80):
+            return
+        if reg == f.GYR_BANDWIDTH:
+            value = 0x80 | (value & 0x0F)
+            if value & 0x0F > 7:
+                return
+            if value != self.regs[reg]:
+                self._anchor(self.clock.now_ns())
+        self.regs[reg] = value
+        if reg == f.GYR_LPM1:
+            on = value == 0x00
+            if on and not self.sampling:
+                self._anchor(self.clock.now_ns())
+            self.sampling = on
+        elif reg == f.GYR_FIFO_CONFIG_0:  # writing the watermark empties the FIFO
+            self.fifo.clear()
+            self.overrun = False
+        elif reg == f.GYR_FIFO_CONFIG_1:
+            self.overrun = False
+
+
+class Bmi088Sim:
+    """Both dies of one BMI088. The dies are attached to the bus separately (`dies`, in the
+    order of the config's `die_buses`); ground truth is taken at the gyro's sample instants,
+    which are the published stream's."""
+
+    def __init__(self, settings: SimSettings, clock: Clock) -> None:
+        self.accel = Bmi088AccelSim(settings, clock)
+        self.gyro = Bmi088GyroSim(settings, clock, self.accel.t_origin_ns)
+        self.accel.record_truth = False
+        self.dies: list[Any] = [self.accel, self.gyro]
+
+    def read(self, register: int, length: int) -> bytes:
+        raise TypeError("a BMI088 is two dies: attach .accel and .gyro to the bus")
+
+    def write(self, register: int, data: bytes) -> None:
+        raise TypeError("a BMI088 is two dies: attach .accel and .gyro to the bus")
+
+    def drain_truth(self) -> dict[str, Any] | None:
+        return self.gyro.drain_truth()
