@@ -74,7 +74,11 @@ class DiePairer:
             return None
         covered = a_t[-1] if a_t.size >= 2 else np.iinfo(np.int64).min
         n = int(np.searchsorted(g_t, covered, side="right"))
-        n = max(n, int(np.searchsorted(g_t, g_t[-1] - self.max_wait_ns, side="right")))
+        stale = int(np.searchsorted(g_t, g_t[-1] - self.max_wait_ns, side="right"))
+        if self.next_seq is None and a_t.size < 2:
+            self._drop_gyro(stale)  # no stream yet: what is too old to wait is not part of it
+            return None
+        n = max(n, stale)
         if n and self.next_seq is None and a_t.size >= 2:
             # before the stream starts, gyro samples older than the first accel one are dropped
             skip = int(np.searchsorted(g_t[:n], a_t[0], side="left"))

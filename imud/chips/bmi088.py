@@ -185,7 +185,8 @@ class Bmi088Driver:
         self.gyro_scale = f.gyro_scale_rads(cfg.gyro_range_dps)
         self.gyro_clock = SampleClock(self.nominal_period_ns)  # the runner may lend its own
         self.accel_clock = SampleClock(self.accel_period_ns)
-        self.pairer = DiePairer(max_wait_ns=max(100_000_000, 4 * self.poll_interval_ns))
+        wait = 3 * self.accel_period_ns + 4 * self.poll_interval_ns  # then accel is missing
+        self.pairer = DiePairer(max_wait_ns=int(max(100e6, wait)))
         self.accel_skipped = 0  # frames the accel FIFO reported overwritten (skip frames)
         self.temperature = 23.0
         self._acc_plan = [
