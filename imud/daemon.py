@@ -24,6 +24,7 @@ import zenoh
 
 from imud import __version__
 from imud.buses.models import I2cBus, SimBus, SpiBus
+from imud.busproc import BusProcess, RunnerProxy
 from imud.calibration import load_calibration
 from imud.chips.base import ChipSim, DeviceBase, Driver
 from imud.clock import Clock, MonotonicClock, epoch_offset_ns
@@ -189,33 +190,35 @@ def _connector(d: DeviceBase, clock: Clock) -> Connect:
     return lambda shared: connect(d, shared, clock)
 
 
+PublishFor = Callable[[int, DeviceBase, bool, Callable[[], None]], Publish]
+
+
 def build_workers(
     cfg: ImudConfig,
-    session: zenoh.Session,
     clock: Clock,
     offset_ns: int,
-    publisher: PublisherThread,
-) -> tuple[list[BusWorker], list[Any]]:
-    """One worker per bus, one runner and publisher per device. Buses open in their workers."""
-    prefix = cfg.zenoh.prefix
+    publish_for: PublishFor,
+    only_bus: str | None = None,
+) -> list[BusWorker]:
+    """One worker per bus, one runner per device. Buses open in their workers.
+
+    `publish_for(index on its bus, device, truth?, on_drop)` gives each runner its publish
+    callable (a queue to the Zenoh publisher thread, or the socket to the daemon process)."""
     workers: dict[str, BusWorker] = {}
-    keep: list[Any] = []
     for d in cfg.device:
-        cal = load_calibration(d.calibration) if d.calibration else None
-        put, pub = _make_publisher(session, f"{prefix}/{d.name}/imu")
-        keep.append(pub)
-        put_truth = None
-        if isinstance(d.bus, SimBus) and d.sim is not None and d.sim.truth:
-            put_truth, tpub = _make_publisher(session, f"{prefix}/{d.name}/sim/truth")
-            keep.append(tpub)
-        runner = DeviceRunner(d, None, cal, put, offset_ns, now_ns=clock.now_ns)
-        runner.publish = _queued(publisher, put, runner.note_publish_drop)
-        if put_truth is not None:
-            runner.publish_truth = _queued(publisher, put_truth, lambda: None)
-        w = workers.get(d.bus.key)
+        key = d.bus.key
+        if only_bus is not None and key != only_bus:
+            continue
+        w = workers.get(key)
         if w is None:
-            w = workers[d.bus.key] = BusWorker(d.bus.key, [], [], _opener(d), clock)
+            w = workers[key] = BusWorker(key, [], [], _opener(d), clock)
             w.realtime_priority = cfg.daemon.realtime_priority
+        index = len(w.runners)
+        cal = load_calibration(d.calibration) if d.calibration else None
+        runner = DeviceRunner(d, None, cal, lambda _: None, offset_ns, now_ns=clock.now_ns)
+        runner.publish = publish_for(index, d, False, runner.note_publish_drop)
+        if isinstance(d.bus, SimBus) and d.sim is not None and d.sim.truth:
+            runner.publish_truth = publish_for(index, d, True, lambda: None)
         fast = getattr(d, "odr_hz", 0) >= 16000
         if fast and cfg.daemon.realtime_priority is None:
             log.warning(
@@ -226,7 +229,7 @@ def build_workers(
             )
         w.runners.append(runner)
         w.connectors.append(_connector(d, clock))
-    return list(workers.values()), keep
+    return list(workers.values())
 
 
 class Daemon:
@@ -235,10 +238,11 @@ class Daemon:
         self.clock = clock or MonotonicClock()
         self.started = time.monotonic()
         self.notifier = Notifier()
-        self.workers: list[BusWorker] = []
+        self.workers: list[BusWorker | BusProcess] = []
+        self.publisher: PublisherThread | None = None
 
     @property
-    def runners(self) -> list[DeviceRunner]:
+    def runners(self) -> list[DeviceRunner | RunnerProxy]:
         return [r for w in self.workers for r in w.runners]
 
     def status(self) -> dict[str, Any]:
@@ -248,11 +252,56 @@ class Daemon:
             "devices": [r.status() for r in self.runners],
         }
 
+    def _build(self, session: zenoh.Session, offset_ns: int) -> list[Any]:
+        """Bus workers (threads here, or one child process per bus) and the Zenoh publishers
+        they feed; returns what must stay alive."""
+        prefix = self.cfg.zenoh.prefix
+        keep: list[Any] = []
+        puts: dict[tuple[str, bool], Publish] = {}
+        for d in self.cfg.device:
+            put, pub = _make_publisher(session, f"{prefix}/{d.name}/imu")
+            puts[(d.name, False)] = put
+            keep.append(pub)
+            if isinstance(d.bus, SimBus) and d.sim is not None and d.sim.truth:
+                put, pub = _make_publisher(session, f"{prefix}/{d.name}/sim/truth")
+                puts[(d.name, True)] = put
+                keep.append(pub)
+        if self.cfg.daemon.bus_processes:
+            spec = {
+                "config": self.cfg.model_dump(mode="json"),
+                "offset_ns": offset_ns,
+                "log_level": logging.getLevelName(logging.getLogger().getEffectiveLevel()),
+            }
+            by_bus: dict[str, list[DeviceBase]] = {}
+            for d in self.cfg.device:
+                by_bus.setdefault(d.bus.key, []).append(d)
+            self.workers = [
+                BusProcess(
+                    key,
+                    ds,
+                    spec,
+                    [(puts[(d.name, False)], puts.get((d.name, True))) for d in ds],
+                )
+                for key, ds in by_bus.items()
+            ]
+            return keep
+        rt = self.cfg.daemon.realtime_priority
+        publisher = self.publisher = PublisherThread(
+            realtime_priority=max(1, rt - 1) if rt else None
+        )
+        publisher.start()
+
+        def publish_for(_: int, d: DeviceBase, truth: bool, on_drop: Callable[[], None]) -> Publish:
+            return _queued(publisher, puts[(d.name, truth)], on_drop)
+
+        self.workers = list(build_workers(self.cfg, self.clock, offset_ns, publish_for))
+        return keep
+
     def _answer(self, q: zenoh.Query, body: dict[str, Any]) -> None:
         with q:
             q.reply(q.key_expr, json.dumps(body), encoding=zenoh.Encoding.APPLICATION_JSON)
 
-    def _device_answer(self, r: DeviceRunner) -> Callable[[zenoh.Query], None]:
+    def _device_answer(self, r: DeviceRunner | RunnerProxy) -> Callable[[zenoh.Query], None]:
         return lambda q: self._answer(q, r.status())
 
     async def run(self) -> int:
@@ -266,12 +315,7 @@ class Daemon:
         )
         session = await anyio.to_thread.run_sync(zenoh.open, daemon_config(z))
         try:
-            rt = self.cfg.daemon.realtime_priority
-            self.publisher = PublisherThread(realtime_priority=max(1, rt - 1) if rt else None)
-            self.publisher.start()
-            self.workers, keep = build_workers(
-                self.cfg, session, self.clock, epoch_offset_ns(), self.publisher
-            )
+            keep = self._build(session, epoch_offset_ns())
             qs = [
                 session.declare_queryable(
                     f"{z.prefix}/daemon/status", lambda q: self._answer(q, self.status())
@@ -301,7 +345,8 @@ class Daemon:
                 for w in self.workers:
                     w.stop.set()
                 tg.cancel_scope.cancel()  # workers finish their current step and return
-            await anyio.to_thread.run_sync(self.publisher.stop)
+            if self.publisher is not None:
+                await anyio.to_thread.run_sync(self.publisher.stop)
             del keep, qs
         finally:
             await anyio.to_thread.run_sync(session.close)

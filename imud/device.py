@@ -120,7 +120,8 @@ class DeviceRunner:
             self._starting = self.driver.start()
         try:
             wait = next(self._starting)
-            self.next_due_ns = now + wait
+            # from the end of the step: its last write (e.g. a reset) starts the chip's delay
+            self.next_due_ns = self.now_ns() + wait
             return
         except StopIteration:
             self._starting = None
@@ -145,7 +146,7 @@ class DeviceRunner:
                 "%s: %s on %s running at %g Hz",
                 self.cfg.name,
                 getattr(self.cfg, "chip", "?"),
-                describe(self.cfg.bus),
+                " + ".join(describe(b) for b in self.cfg.die_buses()),
                 getattr(self.cfg, "odr_hz", 0.0),
             )
         self.state = "running"
@@ -292,7 +293,7 @@ class DeviceRunner:
         return {
             "name": self.cfg.name,
             "chip": getattr(self.cfg, "chip", None),
-            "bus": describe(self.cfg.bus),
+            "bus": " + ".join(describe(b) for b in self.cfg.die_buses()),
             "state": self.state,
             "odr_hz": getattr(self.cfg, "odr_hz", None),
             "measured_rate_hz": round(self.measured_rate_hz, 3),

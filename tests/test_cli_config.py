@@ -26,8 +26,8 @@ def test_check_config_sim_toml() -> None:
     r = imud("check-config", "configs/sim.toml")
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout)
-    assert [d["name"] for d in doc["device"]] == ["imu0", "imu1", "icm0"]
-    assert [d["chip"] for d in doc["device"]] == ["mpu6050", "mpu6050", "icm42688p"]
+    assert [d["name"] for d in doc["device"]] == ["imu0", "imu1", "icm0", "bmi0"]
+    assert [d["chip"] for d in doc["device"]] == ["mpu6050", "mpu6050", "icm42688p", "bmi088"]
     assert [d["odr_hz"] for d in doc["device"]] == [1000.0, 500.0, 32000.0]
     assert [d["bus"]["address"] for d in doc["device"][:2]] == [0x68, 0x69]
     assert doc["device"][2]["bus"]["transport"] == "spi"

@@ -159,11 +159,15 @@ def test_fifo_timestamp_counts_gaps_exactly_when_host_bounds_are_wider_than_a_pe
     t = concat(rig.truth_batches())
     assert rig.driver.counters.fifo_overflows >= 5  # a 2 kB burst at 10 MHz itself takes 1.7 ms
     # Exact accounting: with the offset between seq and the chip's own index fixed by the first
-    # samples, every sample's true instant follows from its seq. A miscounted gap would put
-    # the stamps after it a whole period (31 us) or more off; the stamps themselves are good to
-    # about half a period right after a gap.
+    # samples, every sample's true instant follows from its seq. A gap miscounted by one would
+    # put the typical stamp after it a whole period (31 us) off; the stamps themselves settle
+    # within a few us, though for a few ms after a gap they may stray up to a period.
     i = match_truth(m, t)
     offset = int(np.median((t["seq"][i] - m["seq"])[:1000]))
-    true_t = t["t_ns"][m["seq"] + offset - t["seq"][0]]
-    assert np.abs(m["t_ns"] - true_t).max() < 0.75 * 31_250
+    err = np.abs(m["t_ns"] - t["t_ns"][m["seq"] + offset - t["seq"][0]])
+    gaps = np.flatnonzero(np.diff(m["seq"]) > 1) + 1
+    assert len(gaps) >= 5
+    for seg in np.split(err, gaps):
+        assert np.median(seg) < 0.25 * 31_250
+    assert err.max() < 31_250
     assert rig.runner._sclock._tps == pytest.approx(1e9 / 32000 / (1e6 * 32 / 30 / 1e3), rel=1e-3)

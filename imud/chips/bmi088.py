@@ -101,7 +101,9 @@ class Bmi088Config(DeviceBase):
     @classmethod
     def _same_bus(cls, v: Bus, info: ValidationInfo) -> Bus:
         acc = info.data.get("bus")
-        if acc is None:
+        if acc is None or not isinstance(v, I2cBus | SpiBus | SimBus):
+            return v  # a serial gyro_bus: the device check says which buses the chip takes
+        if not isinstance(acc, I2cBus | SpiBus | SimBus):
             return v
         if type(v) is not type(acc) or v.key != acc.key:
             raise ValueError(
@@ -112,7 +114,7 @@ class Bmi088Config(DeviceBase):
         if isinstance(v, SimBus) and isinstance(acc, SimBus) and v.transport != acc.transport:
             raise ValueError("both dies need the same transport (i2c or spi)")
         if v.slot == acc.slot:
-            where = "chip select" if isinstance(v, SpiBus) or v.kind == "sim" else "address"
+            where = "chip select" if _spi(v) else "address"
             raise ValueError(
                 f"the gyro die needs its own {where}: it is the accel die's ({' '.join(v.slot)})"
             )
@@ -130,13 +132,20 @@ class Bmi088Config(DeviceBase):
                 f"gyro_filter_hz = {self.gyro_filter_hz}: at gyro_odr_hz = {odr:g} the BMI088 "
                 f"gyro filters at {listed} Hz"
             )
+        speeds: list[int] = []
+        for field, b in (("bus", self.bus), ("gyro_bus", self.gyro_bus)):
+            speed = b.clock_hz if isinstance(b, SimBus) else getattr(b, "speed_hz", None)
+            if speed is None:
+                continue
+            speeds.append(speed)
+            if _spi(b) and speed > MAX_SPI_HZ:
+                raise ValueError(
+                    f"the BMI088's SPI runs at most at 10 MHz; {field}.speed_hz is "
+                    f"{speed / 1e6:g} MHz"
+                )
         b = self.bus
         i2c = isinstance(b, I2cBus) or (isinstance(b, SimBus) and b.transport == "i2c")
-        speed = b.clock_hz if isinstance(b, SimBus) else getattr(b, "speed_hz", None)
-        if speed is not None and not i2c and speed > MAX_SPI_HZ:
-            raise ValueError(
-                f"the BMI088's SPI runs at most at 10 MHz; bus.speed_hz is {speed / 1e6:g} MHz"
-            )
+        speed = min(speeds) if speeds else None  # one I2C bus: the slower setting is the truth
         need = bus_bits_per_second(self.accel_odr_hz, odr)
         if i2c and speed is not None and need > speed:
             raise ValueError(

@@ -91,7 +91,8 @@ class Bmi088AccelSim(SampledChip):
         self.settle_until_ns = 0
         self.latest = np.zeros(3, dtype=np.int32)
         self.drdy = False
-        self.temp_reg = temperature_bytes(self.temp.at(np.zeros(1))[0])
+        now_s = (self.clock.now_ns() - self.t_origin_ns) / 1e9
+        self.temp_reg = temperature_bytes(float(self.temp.at(np.array([now_s]))[0]))
         self.temp_next_ns = self.clock.now_ns() + TEMP_UPDATE_NS
         self._anchor(self.clock.now_ns())
 
