@@ -1,8 +1,10 @@
-"""The daemon: one anyio event loop for supervision, one worker thread per bus for blocking I/O.
+"""The daemon: one anyio event loop for supervision, one worker per bus for blocking I/O.
 
 Each bus worker owns its devices and runs start/poll/publish for them in turn, so devices on one
-bus are serialised and the event loop never waits on a bus. The event loop answers signals, tells
-systemd how things are, and pets the watchdog only while every bus worker is alive.
+bus are serialised and the event loop never waits on a bus. Workers run in their own processes
+(`imud.busproc`, the default) or as threads here (`[daemon] bus_processes = false`). The event
+loop answers signals, tells systemd how things are, and pets the watchdog only while every bus
+worker is alive.
 """
 
 from __future__ import annotations
