@@ -180,13 +180,6 @@ class Bmi088AccelSim(SampledChip):
             self.drdy = False
         return bytes(image[register:end]) + bytes(register + length - end)
 
-    def write(self, register: int, data: bytes) -> None:
-        if self.clock.now_ns() < self.busy_until_ns:
-            return
-        self.advance()
-        for i, value in enumerate(data):
-            self._write_one(register + i, value)
-
     def _write_one(self, reg: int, value: int) -> None:
         now = self.clock.now_ns()
         if reg == f.ACC_SOFTRESET:
@@ -282,13 +275,6 @@ class Bmi088GyroSim(SampledChip):
         image[f.GYR_FIFO_STATUS] = (0x80 if self.overrun else 0) | len(self.fifo) // f.GYR_FRAME
         end = min(register + length, len(image))
         return bytes(image[register:end]) + bytes(register + length - end)
-
-    def write(self, register: int, data: bytes) -> None:
-        if self.clock.now_ns() < self.busy_until_ns:
-            return
-        self.advance()
-        for i, value in enumerate(data):
-            self._write_one(register + i, value)
 
     def _write_one(self, reg: int, value: int) -> None:
         if reg == f.GYR_SOFTRESET:

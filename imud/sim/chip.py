@@ -53,7 +53,21 @@ class SampledChip:
         and FIFO."""
         raise NotImplementedError
 
+    def _write_one(self, reg: int, value: int) -> None:
+        """One register write, after the busy check and with samples up to now produced."""
+        raise NotImplementedError
+
     # --- shared -----------------------------------------------------------------------------
+    busy_until_ns = 0  # a chip busy resetting ignores the bus until then
+
+    def write(self, register: int, data: bytes) -> None:
+        """Burst writes go to consecutive registers; a busy chip ignores them."""
+        if self.clock.now_ns() < self.busy_until_ns:
+            return
+        self.advance()
+        for i, value in enumerate(data):
+            self._write_one(register + i, value)
+
     def _anchor(self, now: int) -> None:
         """Restart the sample grid: the next sample comes one period after `now`."""
         self.grid_origin_ns = float(now)

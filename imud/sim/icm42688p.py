@@ -219,13 +219,6 @@ class Icm42688pSim(SampledChip):
             self.count_zero_once = False
         return bytes(image[register:end]) + bytes(register + length - end)
 
-    def write(self, register: int, data: bytes) -> None:
-        if self.clock.now_ns() < self.busy_until_ns:
-            return
-        self.advance()
-        for i, value in enumerate(data):
-            self._write_one(register + i, value)
-
     def _write_one(self, reg: int, value: int) -> None:
         now = self.clock.now_ns()
         if reg == r.REG_BANK_SEL:
