@@ -75,6 +75,26 @@ class DaemonProc:
             time.sleep(0.2)
         raise AssertionError(f"daemon did not start:\n{self.log.read_text()}")
 
+    def collect(self, key: str, seconds: float, depth: int = 65536) -> list[bytes]:
+        """Raw payloads a real subscriber on `key` receives for `seconds` (decoded later, so
+        decoding does not compete with the daemon under test on a small machine)."""
+        import zenoh
+
+        import imud.client as ic
+
+        raw: list[bytes] = []
+        with ic.open_session(self.endpoint) as s:
+            sub = s.declare_subscriber(key, zenoh.handlers.FifoChannel(depth))
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                sample = sub.try_recv()
+                if sample is None:
+                    time.sleep(0.01)
+                    continue
+                raw.append(sample.payload.to_bytes())
+            sub.undeclare()  # type: ignore[no-untyped-call]
+        return raw
+
     def stop(self, sig: int = signal.SIGTERM) -> tuple[int, float]:
         if self.proc.poll() is not None:
             return self.proc.returncode, 0.0
