@@ -128,7 +128,7 @@ chip = "bmi088"
 bus = {{ kind = "sim", bus = "spi1", transport = "spi", cs = 0, speed_hz = 10_000_000 }}
 gyro_bus = {{ kind = "sim", bus = "spi1", transport = "spi", cs = 1, speed_hz = 10_000_000 }}
 accel_odr_hz = 1600
-gyro_odr_hz = 2000
+odr_hz = 2000
 [device.sim]
 seed = 2
 truth = {t}

@@ -1,24 +1,18 @@
-"""Each bus in its own process: no other thread of the daemon can hold its interpreter lock.
+"""The daemon's side of the bus processes (`imud.buschild`): spawn one per bus, relay its batches
+to Zenoh, keep its devices' status, and restart it when it dies or hangs.
 
-Measured on a 2-vCPU machine: with every bus worker in one process, a SCHED_FIFO worker still
-waited 3-6 ms for the GIL now and then, longer than a 32 kHz FIFO lasts (docs/performance.md).
-So the daemon runs each bus worker in a child process (`python -m imud.busproc`) that owns the
-bus, its drivers, pipelines and simulators, and hands encoded batches and status snapshots to the
-daemon over a unix SOCK_SEQPACKET socket (one message per batch, boundaries kept). The child
-never blocks on the daemon: a full socket drops the batch and counts it (`publish_dropped`).
-The daemon keeps Zenoh, the queryables, systemd and supervision, and restarts a child that dies.
-
-Messages, child to daemon: b"P" + device index (u16) + kind (u8, 0 data 1 truth) + payload;
-b"S" + JSON {"heartbeat_ns": int, "devices": [status, ...]}.
+A bus process that keeps crashing is restarted with capped backoff (0.5 s ... 10 s, reset once it
+has run for 10 s) and shown in status (state `error`, `restarts`, `last_error`); the daemon, its
+watchdog and the other buses go on. One that stops reporting progress for `HUNG_S` (a driver
+stuck inside a bus call) is killed and restarted the same way. Counters in status add up over
+the process's lives, and a restarted process continues each device's `seq` from where the
+relayed stream stopped, counting the samples the outage held as lost.
 """
 
 from __future__ import annotations
 
-import contextlib
-import gc
 import json
 import logging
-import os
 import signal
 import socket
 import struct
@@ -29,96 +23,67 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from imud.backoff import Backoff
+from imud.busmsg import HEADER, KIND_DATA, PUBLISH, RECV_MAX, STATUS
+from imud.chips.api import DeviceBase
+from imud.status import DeviceState, initial_status
+
 log = logging.getLogger("imud.busproc")
 
-STATUS_EVERY_S = 0.2
-RECV_MAX = 1 << 20
-SNDBUF = 4 << 20
-_HDR = struct.Struct("<cHB")
-RESTART_MIN_S = 1.0
-RESTART_MAX_S = 30.0
+RESTART_MIN_NS = 500_000_000
+RESTART_MAX_NS = 10_000_000_000
+STABLE_NS = 10_000_000_000  # a process that ran this long starts its backoff over
+HUNG_S = 10.0  # no progress from the bus worker for this long: kill and restart it
+_WIRE_HEAD = struct.Struct("<6xHQI")  # name_len, first_seq, count: the head of imud.wire
+_COUNTERS = (
+    "samples", "lost_samples", "invalid_samples", "fifo_overflows", "bus_errors",
+    "bad_registers", "restarts", "unexpected_errors", "publish_dropped",
+)  # fmt: skip
+
+Put = Callable[[bytes], Any]
 
 
-# --- child side -----------------------------------------------------------------------------
-def _sender(sock: socket.socket, index: int, kind: int, on_drop: Callable[[], None]) -> Any:
-    head = _HDR.pack(b"P", index, kind)
-
-    def send(payload: bytes) -> None:
-        try:
-            sock.send(head + payload, socket.MSG_DONTWAIT)
-        except BlockingIOError:
-            on_drop()
-        except OSError:  # the daemon is gone: stop
-            os.kill(os.getpid(), signal.SIGTERM)
-
-    return send
-
-
-def child_main(fd: int, spec: dict[str, Any]) -> int:
-    """Run one bus worker until SIGTERM (or the daemon's end of the socket closes)."""
-    from imud.clock import MonotonicClock
-    from imud.config import parse_config
-    from imud.daemon import BusWorker, build_workers
-    from imud.logsetup import setup_logging
-
-    setup_logging(spec.get("log_level", "info"))
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the daemon, which stops us
-    sock = socket.socket(fileno=fd)
-    with contextlib.suppress(OSError):
-        sock.setsockopt(socket.SOL_SOCKET, 32, SNDBUF)  # SO_SNDBUFFORCE (root): room for bursts
-    cfg = parse_config(spec["config"])
-    key = spec["bus"]
-
-    def publish_for(index: int, _: Any, truth: bool, on_drop: Callable[[], None]) -> Any:
-        return _sender(sock, index, 1 if truth else 0, on_drop)
-
-    workers = build_workers(cfg, MonotonicClock(), spec["offset_ns"], publish_for, only_bus=key)
-    worker: BusWorker = workers[0]
-    signal.signal(signal.SIGTERM, lambda *_: worker.stop.set())
-
-    def report() -> None:
-        while not worker.stop.wait(STATUS_EVERY_S):
-            body = {"heartbeat_ns": worker.heartbeat_ns,
-                    "devices": [r.status() for r in worker.runners]}  # fmt: skip
-            try:
-                sock.send(b"S" + json.dumps(body).encode(), socket.MSG_DONTWAIT)
-            except BlockingIOError:
-                pass
-            except OSError:
-                worker.stop.set()
-
-    threading.Thread(target=report, name="status", daemon=True).start()
-    gc.collect()
-    gc.freeze()  # see Daemon.run: no long collections on the acquisition path
-    sys.setswitchinterval(0.0005)
-    worker.run()
-    return 0
-
-
-# --- daemon side ----------------------------------------------------------------------------
 class RunnerProxy:
-    """What the daemon knows of a device run by a child: its last status snapshot."""
+    """What the daemon knows of a device run by a child: its last status snapshot, with the
+    counters of the child's earlier lives added, and where its stream has got to."""
 
-    def __init__(self, cfg: Any) -> None:
-        from imud.buses.models import describe
-
+    def __init__(self, cfg: DeviceBase) -> None:
         self.cfg = cfg
-        buses = " + ".join(describe(b) for b in cfg.die_buses())
-        self._status: dict[str, Any] = {
-            "name": cfg.name, "chip": cfg.chip, "bus": buses, "state": "starting",
-            "odr_hz": getattr(cfg, "odr_hz", None), "measured_rate_hz": 0.0, "samples": 0,
-            "lost_samples": 0, "last_error": None,
-        }  # fmt: skip
+        self._status: dict[str, Any] = initial_status(cfg)
+        self._base = dict.fromkeys(_COUNTERS, 0)  # counters of the earlier lives
+        self._restarts = 0  # process restarts
+        self.next_seq: int | None = None
+        self.last_t_ns = 0
 
     def status(self) -> dict[str, Any]:
-        return dict(self._status)
+        st = dict(self._status)
+        for k in _COUNTERS:
+            st[k] = int(st.get(k, 0)) + self._base[k]
+        st["restarts"] += self._restarts
+        return st
 
     def update(self, status: dict[str, Any]) -> None:
         self._status = status
 
     def down(self, msg: str) -> None:
-        self._status = {**self._status, "state": "error", "last_error": msg,
-                        "measured_rate_hz": 0.0}  # fmt: skip
+        """The child died: keep its counters, show the error until a new child reports."""
+        for k in _COUNTERS:
+            self._base[k] += int(self._status.get(k, 0))
+        self._restarts += 1
+        self._status = {
+            **initial_status(self.cfg),
+            "state": DeviceState.ERROR,
+            "last_error": msg,
+            "last_error_at": time.time(),
+        }
+
+    def saw_batch(self, payload: bytes) -> None:
+        """Where the relayed stream has got to: a restarted child continues from there."""
+        name_len, first_seq, n = _WIRE_HEAD.unpack_from(payload)
+        if n:
+            off = 32 + name_len + (-name_len) % 8 + 8 * (n - 1)
+            self.next_seq = first_seq + n
+            self.last_t_ns = int.from_bytes(payload[off : off + 8], "little", signed=True)
 
     @property
     def state(self) -> str:
@@ -126,7 +91,7 @@ class RunnerProxy:
 
     @property
     def lost_samples(self) -> int:
-        return int(self._status.get("lost_samples", 0))
+        return int(self._status.get("lost_samples", 0)) + self._base["lost_samples"]
 
     @property
     def measured_rate_hz(self) -> float:
@@ -134,100 +99,121 @@ class RunnerProxy:
 
 
 class BusProcess:
-    """Runs one bus's child process, relays its batches to Zenoh and keeps its devices' status.
-    `run()` blocks (a daemon thread); `stop` ends it and the child."""
+    """Runs one bus's child process, relays its batches and keeps its devices' status.
+    `run()` blocks (a thread of the daemon); setting `stop` ends it and the child."""
 
     def __init__(
         self,
         key: str,
-        devices: list[Any],
+        devices: list[DeviceBase],
         spec: dict[str, Any],
-        puts: list[tuple[Callable[[bytes], Any], Callable[[bytes], Any] | None]],
+        puts: list[tuple[Put, Put | None]],
     ) -> None:
         self.key = key
         self.runners = [RunnerProxy(d) for d in devices]
         self.spec = {**spec, "bus": key}
         self.puts = puts  # per device: (data put, truth put or None)
         self.stop = threading.Event()
-        self.heartbeat_ns = time.monotonic_ns()
+        self.heartbeat_ns = time.monotonic_ns()  # the relay's own progress
+        self.worker_heartbeat_ns = 0  # the child's bus worker's, from its status reports
         self.proc: subprocess.Popen[bytes] | None = None
-        self._restart_s = RESTART_MIN_S
+        self.backoff = Backoff(RESTART_MIN_NS, RESTART_MAX_NS)
+        self.restarts = 0
+        self.last_error: str | None = None
 
     def _spawn(self) -> socket.socket:
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        resume = {
+            str(i): [r.next_seq, r.last_t_ns]
+            for i, r in enumerate(self.runners)
+            if r.next_seq is not None
+        }
         with theirs:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "imud.busproc", str(theirs.fileno())],
+                [sys.executable, "-m", "imud.buschild", str(theirs.fileno())],
                 stdin=subprocess.PIPE,
                 pass_fds=[theirs.fileno()],
             )
         assert self.proc.stdin is not None
-        self.proc.stdin.write(json.dumps(self.spec).encode())
+        self.proc.stdin.write(json.dumps({**self.spec, "resume": resume}).encode())
         self.proc.stdin.close()
-        self.heartbeat_ns = time.monotonic_ns()
+        self.heartbeat_ns = self.worker_heartbeat_ns = time.monotonic_ns()
         return ours
 
-    def _relay(self, sock: socket.socket) -> None:
+    def _relay(self, sock: socket.socket) -> str | None:
+        """Until the child exits (None) or hangs (why)."""
         sock.settimeout(0.5)
         while not self.stop.is_set():
+            self.heartbeat_ns = time.monotonic_ns()
+            if self.heartbeat_ns - self.worker_heartbeat_ns > HUNG_S * 1e9:
+                return f"bus worker made no progress for {HUNG_S:g} s (stuck in a bus call?)"
             try:
                 msg = sock.recv(RECV_MAX)
             except TimeoutError:
                 continue
             if not msg:
-                return  # the child exited
-            if msg[:1] == b"P":
-                _, index, kind = _HDR.unpack_from(msg)
+                return None  # the child exited
+            if msg[:1] == PUBLISH:
+                _, index, kind = HEADER.unpack_from(msg)
+                payload = msg[HEADER.size :]
                 put = self.puts[index][kind]
+                if kind == KIND_DATA:
+                    self.runners[index].saw_batch(payload)
                 if put is not None:
                     try:
-                        put(msg[_HDR.size :])
+                        put(payload)
                     except Exception:  # a closing session at shutdown: log, go on
                         log.exception("publishing failed")
-            elif msg[:1] == b"S":
+            elif msg[:1] == STATUS:
                 body = json.loads(msg[1:])
-                self.heartbeat_ns = int(body["heartbeat_ns"]) or time.monotonic_ns()
+                self.worker_heartbeat_ns = int(body["heartbeat_ns"]) or time.monotonic_ns()
                 for r, st in zip(self.runners, body["devices"], strict=True):
                     r.update(st)
-                self._restart_s = RESTART_MIN_S
+        return None
 
     def run(self) -> None:
         while not self.stop.is_set():
-            sock = self._spawn()
+            started = time.monotonic_ns()
             try:
-                self._relay(sock)
-            finally:
-                sock.close()
-                code = self._end_child()
+                sock = self._spawn()
+            except OSError as e:
+                why, code = f"cannot start the bus process: {e}", None
+            else:
+                try:
+                    why = self._relay(sock)
+                finally:
+                    sock.close()
+                    code = self._end_child(kill=why is not None)
             if self.stop.is_set():
                 return
-            msg = f"bus process for {self.key} exited with code {code}"
-            log.error("%s; restarting it in %.0f s", msg, self._restart_s)
+            now = time.monotonic_ns()
+            if now - started >= STABLE_NS:
+                self.backoff.reset()
+            wait = self.backoff.failed(now)
+            msg = f"bus process for {self.key} {why or f'exited with code {code}'}"
+            self.restarts += 1
+            self.last_error = msg
+            log.error("%s; restarting it in %.1f s", msg, wait / 1e9)
             for r in self.runners:
                 r.down(msg)
-            self.heartbeat_ns = time.monotonic_ns()
-            self.stop.wait(self._restart_s)
-            self._restart_s = min(2 * self._restart_s, RESTART_MAX_S)
+            self._sleep(wait)
 
-    def _end_child(self, grace_s: float = 3.0) -> int | None:
+    def _sleep(self, ns: int) -> None:
+        """Wait before a restart, still showing the daemon that this relay is alive."""
+        end = time.monotonic_ns() + ns
+        while not self.stop.is_set() and (left := end - time.monotonic_ns()) > 0:
+            self.heartbeat_ns = time.monotonic_ns()
+            self.stop.wait(min(left, 500_000_000) / 1e9)
+
+    def _end_child(self, grace_s: float = 3.0, kill: bool = False) -> int | None:
         p = self.proc
         if p is None:
             return None
         if p.poll() is None:
-            p.send_signal(signal.SIGTERM)
+            p.send_signal(signal.SIGKILL if kill else signal.SIGTERM)
             try:
                 p.wait(grace_s)
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
         return p.returncode
-
-
-def main() -> int:
-    fd = int(sys.argv[1])
-    spec = json.loads(sys.stdin.buffer.read())
-    return child_main(fd, spec)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

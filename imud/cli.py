@@ -192,12 +192,11 @@ def echo(
                         lost += b.first_seq - next_seq
                     next_seq = b.first_seq + b.count
                     now = time.monotonic()
-                    if now - window_start >= 1.0:
+                    if now - window_start >= 1.0 and b.accel is not None:
                         a = b.accel.mean(axis=0)
                         click.echo(
                             f"{device}: {window_n / (now - window_start):8.1f} samples/s  "
                             f"lost {lost}  accel [{a[0]:+.3f} {a[1]:+.3f} {a[2]:+.3f}] m/s²"
-                            f"  {b.temperature_c[-1]:.1f} °C"
                         )
                         window_start, window_n = now, 0
                     continue
@@ -211,26 +210,22 @@ def echo(
 
 
 def _print_sample(b: Any, i: int, as_json: bool) -> None:
-    a, g = b.accel[i], b.gyro[i]
+    from imud.channels import CHANNELS
+
     if as_json:
-        click.echo(
-            json.dumps(
-                {
-                    "device": b.device,
-                    "seq": int(b.first_seq + i),
-                    "t_ns": int(b.t_ns[i]),
-                    "accel": [float(x) for x in a],
-                    "gyro": [float(x) for x in g],
-                    "temperature_c": float(b.temperature_c[i]),
-                }
-            )
-        )
-    else:
-        click.echo(
-            f"{b.first_seq + i:>10} {int(b.t_ns[i]):>20}  a[m/s²] {a[0]:+9.4f} {a[1]:+9.4f} "
-            f"{a[2]:+9.4f}  ω[rad/s] {g[0]:+8.4f} {g[1]:+8.4f} {g[2]:+8.4f}  "
-            f"{b.temperature_c[i]:6.2f} °C"
-        )
+        row: dict[str, Any] = {"device": b.device, "seq": int(b.first_seq + i),
+                               "t_ns": int(b.t_ns[i]), "flags": int(b.sample_flags[i])}  # fmt: skip
+        for ch, arr in b.channels.items():
+            v = arr[i]
+            row[CHANNELS[ch].key] = float(v) if arr.ndim == 1 else [float(x) for x in v]
+        click.echo(json.dumps(row))
+        return
+    parts = [f"{b.first_seq + i:>10} {int(b.t_ns[i]):>20}"]
+    for ch, arr in b.channels.items():
+        v = arr[i]
+        vals = f"{float(v):8.3f}" if arr.ndim == 1 else " ".join(f"{float(x):+9.4f}" for x in v)
+        parts.append(f"{CHANNELS[ch].key} {vals}")
+    click.echo("  ".join(parts))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -8,27 +8,26 @@ from __future__ import annotations
 
 import tomllib
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal, Union
+from typing import Annotated, Any, Literal, Union, cast
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    create_model,
+    field_validator,
+    model_validator,
+)
 
+from imud import registry
 from imud.buses.models import SimBus
 from imud.calibration import CalibrationError, load_calibration
-from imud.chips import CHIPS
-from imud.chips.base import DeviceBase
+from imud.chips.api import DeviceBase
 from imud.errors import ConfigError
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 _PROTOCOLS = {"tcp", "udp", "tls", "quic", "unixsock-stream", "ws"}
-
-# Discriminated on `chip`; each chip module contributes its own model through the registry.
-if TYPE_CHECKING:
-    DeviceConfig = DeviceBase
-else:
-    DeviceConfig = Annotated[
-        Union[tuple(spec.config_model for spec in CHIPS.values())],  # noqa: UP007
-        Field(discriminator="chip"),
-    ]
 
 
 class ZenohSettings(BaseModel):
@@ -79,11 +78,14 @@ class DaemonSettings(BaseModel):
 
 
 class ImudConfig(BaseModel):
+    """The whole file. `device` is validated as the union of the registered chips' models,
+    discriminated on `chip` (see `config_model`); to the type checker it is `DeviceBase`."""
+
     model_config = ConfigDict(extra="forbid")
 
     daemon: DaemonSettings = Field(default_factory=DaemonSettings)
     zenoh: ZenohSettings = Field(default_factory=ZenohSettings)
-    device: list[DeviceConfig] = Field(min_length=1)
+    device: list[DeviceBase] = Field(min_length=1)
 
     @model_validator(mode="after")
     def _unique(self) -> ImudConfig:
@@ -101,7 +103,7 @@ class ImudConfig(BaseModel):
                     "names must be unique"
                 )
             names[d.name] = i
-            transports = CHIPS[d.chip].transports
+            transports = registry.CHIPS[d.chip].transports
             for bus in d.die_buses():
                 slot = bus.slot
                 if slot in slots:
@@ -130,6 +132,27 @@ def _default_sim() -> Any:
     from imud.sim.settings import SimSettings
 
     return SimSettings()
+
+
+_models: tuple[int, type[ImudConfig]] | None = None
+
+
+def config_model() -> type[ImudConfig]:
+    """`ImudConfig` with `device` as the union of every registered chip's model; rebuilt when
+    a chip is registered (a test's toy chip, a plugin)."""
+    global _models
+    if _models is None or _models[0] != registry.generation:
+        models = tuple(spec.config_model for spec in registry.CHIPS.values())
+        device: Any = (
+            models[0]
+            if len(models) == 1
+            else Annotated[Union[models], Field(discriminator="chip")]  # noqa: UP007
+        )
+        model = create_model(
+            "ImudConfig", __base__=ImudConfig, device=(list[device], Field(min_length=1))
+        )
+        _models = (registry.generation, cast(type[ImudConfig], model))
+    return _models[1]
 
 
 def _where(loc: tuple[int | str, ...], raw: dict[str, Any]) -> str:
@@ -163,7 +186,7 @@ def _format(err: Any, raw: dict[str, Any]) -> str:
     if kind in ("union_tag_invalid", "union_tag_not_found"):
         ctx = err.get("ctx") or {}
         field = str(ctx.get("discriminator", "'kind'")).strip("'")
-        known = ctx.get("expected_tags") or ", ".join(repr(c) for c in CHIPS)
+        known = ctx.get("expected_tags") or ", ".join(repr(c) for c in registry.CHIPS)
         what = "chip" if field == "chip" else f"{where.rsplit(': ', 1)[-1]} {field}"
         if kind == "union_tag_not_found":
             return f"{where}: missing {field!r} (one of: {known})"
@@ -176,7 +199,7 @@ def _format(err: Any, raw: dict[str, Any]) -> str:
 
 def parse_config(raw: dict[str, Any], base_dir: Path | None = None) -> ImudConfig:
     try:
-        cfg = ImudConfig.model_validate(raw, context={"base_dir": base_dir})
+        cfg = config_model().model_validate(raw, context={"base_dir": base_dir})
     except ValidationError as e:
         raise ConfigError([_format(err, raw) for err in e.errors()]) from None
     problems = []

@@ -1,7 +1,9 @@
 """One device at run time: driver + pipeline + publishers + health counters.
 
-Everything here runs in the device's bus worker thread. Counters are plain ints read by the status
-queryable from Zenoh's thread: CPython makes each read atomic, and status is a snapshot anyway.
+Everything here runs in the device's bus worker. Counters are plain ints read by the status
+snapshot from another thread: CPython makes each read atomic, and status is a snapshot anyway.
+Nothing a chip, a bus or a driver does (an exception of any kind included) escapes `step()`: it
+is counted, shown in status, logged once with its traceback when unexpected, and retried.
 """
 
 from __future__ import annotations
@@ -15,11 +17,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from imud.backoff import Backoff
 from imud.buses.models import describe
 from imud.calibration import Calibration
-from imud.chips.base import ChipSim, DeviceBase, Driver
+from imud.channels import Channel
+from imud.chips.api import DeviceBase, Driver, SimChip
 from imud.errors import BusError, DeviceIdentityError, RegisterMismatch
-from imud.pipeline import Pipeline
+from imud.pipeline import Pipeline, SampleBatch
+from imud.status import DeviceState, initial_status
 from imud.timestamps import SampleClock
 from imud.wire import FLAG_RESYNC, KIND_TRUTH, encode
 
@@ -29,13 +34,16 @@ Publish = Callable[[bytes], None]
 MAX_CONSECUTIVE_FAILURES = 10
 RETRY_MIN_NS = 500_000_000
 RETRY_MAX_NS = 30_000_000_000
+LOSS_LOG_EVERY_NS = 10_000_000_000
+_EXPECTED = (BusError, DeviceIdentityError, OSError)  # a chip or bus that misbehaves
 
 
-def _valid_runs(valid: npt.NDArray[np.bool_] | None, n: int) -> list[tuple[int, int]]:
-    """[start, end) of each run of valid samples; the whole batch when there is no mask."""
-    if valid is None:
+def _runs(hole: npt.NDArray[np.bool_] | None, n: int) -> list[tuple[int, int]]:
+    """[start, end) of each run of publishable samples; the whole batch when there are no
+    holes."""
+    if hole is None:
         return [(0, n)] if n else []
-    edges = np.flatnonzero(np.diff(np.concatenate(([False], valid, [False])).astype(np.int8)))
+    edges = np.flatnonzero(np.diff(np.concatenate(([True], hole, [True])).astype(np.int8)))
     return list(zip(edges[0::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
@@ -48,7 +56,7 @@ class DeviceRunner:
         publish: Publish,
         epoch_offset_ns: int,
         *,
-        sim: ChipSim | None = None,
+        sim: SimChip | None = None,
         publish_truth: Publish | None = None,
         now_ns: Callable[[], int] = time.monotonic_ns,
     ) -> None:
@@ -60,18 +68,21 @@ class DeviceRunner:
         self.sim = sim
         self.epoch_offset_ns = epoch_offset_ns
         self.now_ns = now_ns
-        self.state = "starting"
+        self.state = DeviceState.STARTING
         self.last_error: str | None = None
+        self.last_error_at: float | None = None  # wall-clock seconds
         self.samples = 0
         self.lost_samples = 0
+        self.invalid_samples = 0
         self.bus_errors = 0
         self.restarts = 0
+        self.unexpected_errors = 0
         self.batches = 0
         self.temperature_c: float | None = None
         self.measured_rate_hz = 0.0
         self._rate_window: deque[tuple[int, int]] = deque()
         self._failures = 0
-        self._retry_ns = RETRY_MIN_NS
+        self._retry = Backoff(RETRY_MIN_NS, RETRY_MAX_NS)
         self.next_due_ns = 0
         self.pipeline: Pipeline | None = None
         self._starting: Iterator[int] | None = None
@@ -81,23 +92,45 @@ class DeviceRunner:
         self._late_cur_ns = 0
         self._late_window_ns = 0
         self._unpublished_lost = 0
-        self._run_end = 0  # end of the last published run within the current batch
         self._loss_unlogged = 0
         self._loss_logged_ns = -(10**12)
-        self._sclock: SampleClock | None = None
+        self._traced: str | None = None  # the unexpected error last logged with its traceback
+        self._resume: tuple[int, int] | None = None
+
+    def resume(self, next_seq: int, last_t_ns: int) -> None:
+        """Continue a stream this device published before (from a bus process that died):
+        `seq` goes on from `next_seq`, and the samples the outage held count as lost."""
+        self._resume = (next_seq, last_t_ns)
+
+    # --- errors -----------------------------------------------------------------------------
+    def _error(self, msg: str) -> None:
+        self.last_error = msg
+        self.last_error_at = time.time()
+
+    def unexpected(self, where: str, e: BaseException) -> str:
+        """An exception no driver should raise (a bug, an answer nobody expected): counted, and
+        logged with its traceback once per distinct message, not on every retry."""
+        self.unexpected_errors += 1
+        msg = f"{where}: unexpected {type(e).__name__}: {e}"
+        if msg != self._traced:
+            log.error("%s: %s (logged once; see the traceback)", self.cfg.name, msg, exc_info=e)
+            self._traced = msg
+        self._error(msg)
+        return msg
 
     # --- lifecycle --------------------------------------------------------------------------
-    def attach(self, driver: Driver, sim: ChipSim | None = None) -> None:
+    def attach(self, driver: Driver, sim: SimChip | None = None) -> None:
         """The bus is open: start this device on it at once."""
         self.driver, self.sim = driver, sim
-        self.state = "starting"
+        self.state = DeviceState.STARTING
         self.next_due_ns = 0
 
     def bus_down(self, msg: str, retry_ns: int) -> None:
-        """The bus will not open; the worker retries it every `retry_ns`."""
+        """The bus (or this device's link on it) will not open; the worker retries it."""
         if self.last_error != msg:
             log.error("%s: %s; retrying in %.1f s", self.cfg.name, msg, retry_ns / 1e9)
-        self.state, self.last_error = "error", msg
+        self.state = DeviceState.ERROR
+        self._error(msg)
         self._idle()
 
     def _idle(self) -> None:
@@ -105,118 +138,136 @@ class DeviceRunner:
         self._rate_window.clear()
 
     def _fail(self, msg: str, now: int) -> None:
-        if self.state != "error" or self.last_error != msg:
-            log.error("%s: %s; retrying in %.1f s", self.cfg.name, msg, self._retry_ns / 1e9)
-        self.state = "error"
-        self.last_error = msg
-        self.next_due_ns = now + self._retry_ns
-        self._retry_ns = min(self._retry_ns * 2, RETRY_MAX_NS)
+        wait = self._retry.failed(now)
+        if self.state != DeviceState.ERROR or self.last_error != msg:
+            log.error("%s: %s; retrying in %.1f s", self.cfg.name, msg, wait / 1e9)
+        self.state = DeviceState.ERROR
+        self._error(msg)
+        self.next_due_ns = now + wait
         self._idle()
 
     def _start(self, now: int) -> None:
         """Advance the driver's start sequence by one step; the bus is free between steps."""
         assert self.driver is not None
-        if self._starting is None:
-            self._starting = self.driver.start()
         try:
+            if self._starting is None:
+                self._starting = self.driver.start()
             wait = next(self._starting)
             # from the end of the step: its last write (e.g. a reset) starts the chip's delay
             self.next_due_ns = self.now_ns() + wait
             return
         except StopIteration:
             self._starting = None
-        except (BusError, DeviceIdentityError, OSError) as e:
+        except _EXPECTED as e:
             self._starting = None
             if isinstance(e, BusError):
                 self.bus_errors += 1
             self._fail(f"start failed: {e}", self.now_ns())
             return
-        if self._sclock is None:
-            self._sclock = SampleClock(self.driver.nominal_period_ns)
-        else:  # a re-initialised chip restarts its sample grid; keep seq counting across it
-            self._sclock.rebase()
-        bind = getattr(self.driver, "bind_clock", None)
-        if bind is not None:  # a driver that stamps its own samples (two dies) uses this clock
-            bind(self._sclock)
-        self.pipeline = Pipeline(self._sclock, self.calibration, self.epoch_offset_ns)
-        if self.state == "error":
+        except Exception as e:
+            self._starting = None
+            self._fail(self.unexpected("start", e), self.now_ns())
+            return
+        if self.pipeline is None:
+            clock = SampleClock(self.driver.nominal_period_ns)
+            self.pipeline = Pipeline(clock, self.calibration, self.epoch_offset_ns, self._resume)
+        elif self.pipeline.clock.k_last >= 0:
+            # a re-initialised chip restarts its sample grid; keep seq counting across it
+            self.pipeline.clock.rebase()
+        if self.state == DeviceState.ERROR:
             log.warning("%s: recovered after: %s", self.cfg.name, self.last_error)
         else:
             log.info(
                 "%s: %s on %s running at %g Hz",
                 self.cfg.name,
-                getattr(self.cfg, "chip", "?"),
+                self.cfg.chip,
                 " + ".join(describe(b) for b in self.cfg.die_buses()),
-                getattr(self.cfg, "odr_hz", 0.0),
+                self.cfg.odr_hz,
             )
-        self.state = "running"
+        self.state = DeviceState.RUNNING
         self._failures = 0
-        self._retry_ns = RETRY_MIN_NS
+        self._retry.reset()
         self.next_due_ns = self.now_ns() + self.driver.poll_interval_ns
 
     def stop(self) -> None:
-        if self.driver is not None and self.state == "running":
-            self.driver.stop()
-        self.state = "stopped"
+        if self.driver is not None and self.state == DeviceState.RUNNING:
+            try:
+                self.driver.stop()
+            except Exception as e:  # best effort: the daemon is stopping anyway
+                self.unexpected("stop", e)
+        self.state = DeviceState.STOPPED
 
     # --- one scheduling step ------------------------------------------------------------------
     def step(self) -> None:
-        """Start, retry or poll, whichever is due. Never raises for chip or bus trouble."""
+        """Start, retry or poll, whichever is due. Never raises for chip, bus or driver trouble."""
         now = self.now_ns()
         if self.driver is None:
             self.next_due_ns = now + RETRY_MAX_NS
             return
-        if self.state != "running":
+        if self.state != DeviceState.RUNNING:
             self._start(now)
             return
         self.next_due_ns = now + self._poll_delay()
         try:
             raw = self.driver.read()
+            assert self.pipeline is not None
+            batch = self.pipeline.process(raw)
         except RegisterMismatch as e:
             self.restarts += 1
-            self.last_error = str(e)
+            self._error(str(e))
             log.warning("%s: %s", self.cfg.name, e)
-            self.state = "starting"
+            self.state = DeviceState.STARTING
             self._start(now)
             return
-        except (BusError, OSError) as e:
+        except _EXPECTED as e:
             self.bus_errors += 1
-            self._failures += 1
-            self.last_error = f"bus error: {e}"
-            if self._failures > MAX_CONSECUTIVE_FAILURES:
-                self.restarts += 1
-                self._fail(f"{self._failures} bus errors in a row, last: {e}", now)
+            self._read_failed(f"bus error: {e}", now)
+            return
+        except Exception as e:
+            self._read_failed(self.unexpected("read", e), now)
             return
         self._failures = max(0, self._failures - 1)
-        assert self.pipeline is not None
-        batch = self.pipeline.process(raw)
+        self._publish(batch, now)
+        self._publish_truth()
+        self._update_rate(now)
+
+    def _read_failed(self, msg: str, now: int) -> None:
+        self._failures += 1
+        self._error(msg)
+        if self._failures > MAX_CONSECUTIVE_FAILURES:
+            self.restarts += 1
+            self._fail(f"{self._failures} failed reads in a row, last: {msg}", now)
+
+    def _publish(self, batch: SampleBatch, now: int) -> None:
         if batch.lost_before:
             self._note_loss(batch.lost_before, now)
-        for start, end in _valid_runs(batch.valid, batch.n):
-            if start:  # samples the chip marked invalid are holes in the stream: lost
-                self._note_loss(start - self._run_end, now)
+        run_end = 0
+        for start, end in _runs(batch.hole, batch.n):
+            if start > run_end:  # samples with no valid data at all are holes: lost
+                self._note_loss(start - run_end, now)
+            sf = batch.sample_flags[start:end]
             self.publish(
                 encode(
                     self.cfg.name,
                     batch.first_seq + start,
                     batch.t_ns[start:end],
-                    batch.accel[start:end],
-                    batch.gyro[start:end],
-                    batch.temperature_c[start:end],
+                    {c: a[start:end] for c, a in batch.channels.items()},
+                    sf,
                     flags=batch.flags | (FLAG_RESYNC if self._unpublished_lost else 0),
                     lost_before=self._unpublished_lost,
                 )
             )
             self._unpublished_lost = 0
-            self._run_end = end
+            run_end = end
             self.samples += end - start
             self.batches += 1
-            self.temperature_c = float(batch.temperature_c[end - 1])
-        if batch.n and self._run_end < batch.n:
-            self._note_loss(batch.n - self._run_end, now)
-        self._run_end = 0
-        self._publish_truth()
-        self._update_rate(now)
+            if sf.any():
+                self.invalid_samples += int(np.count_nonzero(sf & 0xFFFF))
+            temp = batch.channels.get(Channel.TEMPERATURE)
+            if temp is not None and not np.isnan(temp[end - 1]):
+                self.temperature_c = float(temp[end - 1])
+        if batch.n and run_end < batch.n:
+            self._note_loss(batch.n - run_end, now)
 
     def _note_loss(self, lost: int, now: int) -> None:
         """Count lost samples, carry them to the next published batch, and say so in the log
@@ -224,7 +275,7 @@ class DeviceRunner:
         self.lost_samples += lost
         self._unpublished_lost += lost
         self._loss_unlogged += lost
-        if now - self._loss_logged_ns >= 10_000_000_000:
+        if now - self._loss_logged_ns >= LOSS_LOG_EVERY_NS:
             c = self.driver.counters if self.driver is not None else None
             log.warning(
                 "%s: %d samples lost since the last report (%d in all; FIFO overflows %d, "
@@ -238,7 +289,7 @@ class DeviceRunner:
             self._loss_unlogged, self._loss_logged_ns = 0, now
 
     def note_publish_drop(self) -> None:
-        """The publisher's queue was full (a subscriber stuck for seconds): a batch is gone."""
+        """The way to the publisher was full (a subscriber stuck for seconds): a batch is gone."""
         self.publish_dropped += 1
 
     def note_lateness(self, late_ns: int, now: int) -> None:
@@ -266,11 +317,9 @@ class DeviceRunner:
             self.publish_truth(
                 encode(
                     self.cfg.name,
-                    int(t["index"]),
-                    t["t_ns"] + self.epoch_offset_ns,
-                    t["accel"],
-                    t["gyro"],
-                    t["temp"],
+                    t.index,
+                    t.t_ns + self.epoch_offset_ns,
+                    t.channels,
                     kind=KIND_TRUTH,
                 )
             )
@@ -290,23 +339,30 @@ class DeviceRunner:
     # --- status -----------------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
         c = self.driver.counters if self.driver is not None else None
+        chip: dict[str, Any] = {}
+        if self.driver is not None:
+            try:
+                chip = self.driver.chip_status()
+            except Exception as e:  # a status snapshot must never fail
+                chip = {"error": f"{type(e).__name__}: {e}"}
         return {
-            "name": self.cfg.name,
-            "chip": getattr(self.cfg, "chip", None),
-            "bus": " + ".join(describe(b) for b in self.cfg.die_buses()),
+            **initial_status(self.cfg),
             "state": self.state,
-            "odr_hz": getattr(self.cfg, "odr_hz", None),
             "measured_rate_hz": round(self.measured_rate_hz, 3),
-            "chip_rate_hz": round(self._sclock.rate_hz, 3) if self._sclock else None,
+            "chip_rate_hz": round(self.pipeline.rate_hz, 3) if self.pipeline else None,
             "samples": self.samples,
             "lost_samples": self.lost_samples,
+            "invalid_samples": self.invalid_samples,
             "fifo_overflows": c.fifo_overflows if c else 0,
             "bus_errors": self.bus_errors,
             "bad_registers": c.bad_registers if c else 0,
             "restarts": self.restarts,
+            "unexpected_errors": self.unexpected_errors,
             "poll_late_max_ms": round(self.poll_late_max_ns / 1e6, 3),
             "publish_dropped": self.publish_dropped,
             "temperature_c": None if self.temperature_c is None else round(self.temperature_c, 2),
             "calibration": str(self.calibration.path) if self.calibration else None,
             "last_error": self.last_error,
+            "last_error_at": self.last_error_at,
+            "chip_status": chip,
         }

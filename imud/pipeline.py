@@ -1,6 +1,8 @@
-"""Pipeline stages: pure functions on NumPy batches, bytes-to-SI in order.
+"""Pipeline stages: pure functions on NumPy batches, raw counts to published samples, in order.
 
-raw counts --to_si--> SI units --calibrate--> corrected --(timestamps from SampleClock)--> Batch
+raw channels --stamp (sample-clock fit, or the driver's own stamps)--> t_ns, seq
+             --flags (invalid, saturated, alarm)--> per-sample flags
+             --to_si (NaN where invalid)--> SI --calibrate--> corrected --> SampleBatch
 """
 
 from __future__ import annotations
@@ -11,35 +13,90 @@ import numpy as np
 import numpy.typing as npt
 
 from imud.calibration import Calibration
-from imud.chips.base import RawBatch
-from imud.timestamps import SampleClock
+from imud.channels import INVALID_MASK, SATURATED, Channel, SampleFlag
+from imud.chips.api import FifoRead, RawBatch
+from imud.timestamps import SampleClock, Stamped
 from imud.wire import FLAG_CALIBRATED, FLAG_RESYNC
 
 F64 = npt.NDArray[np.float64]
+U32 = npt.NDArray[np.uint32]
+_ALARM = np.uint32(SampleFlag.CHIP_ALARM)
 
 
-def to_si(raw: RawBatch) -> tuple[F64, F64]:
-    """Counts to m/s^2 and rad/s for the configured ranges."""
-    return (
-        raw.accel.astype(np.float64) * raw.accel_scale,
-        raw.gyro.astype(np.float64) * raw.gyro_scale,
+def stamp(clock: SampleClock, raw: RawBatch) -> Stamped:
+    """Stamps from the chip's sample clock fitted to the read's host-time brackets, or the
+    driver's own (a chip of several dies stamps each die itself)."""
+    t = raw.timing
+    if not isinstance(t, FifoRead):
+        return t
+    c = t.counter
+    return clock.update(
+        raw.n,
+        t.t_before_ns,
+        t.t_after_ns,
+        t.resync,
+        restart=t.restart_ns,
+        full=t.fifo_full,
+        ticks=None if c is None else c.values,
+        ticks_modulo=0 if c is None else c.modulo,
     )
 
 
-def calibrate(cal: Calibration | None, accel: F64, gyro: F64) -> tuple[F64, F64]:
-    return (accel, gyro) if cal is None else cal.apply(accel, gyro)
+def sample_flags(raw: RawBatch) -> U32:
+    """Per-sample flags: each channel the chip marked invalid, each sensor at full scale, and
+    the chip's alarm."""
+    flags = np.zeros(raw.n, dtype=np.uint32)
+    for ch, rc in raw.channels.items():
+        if rc.invalid is not None:
+            flags[rc.invalid] |= np.uint32(ch)
+        sat = SATURATED.get(ch)
+        if sat is not None and rc.full_scale is not None and raw.n:
+            d = rc.data
+            if d.max() >= rc.full_scale or d.min() <= -rc.full_scale:  # rare: then per sample
+                hit = (np.abs(d) >= rc.full_scale).reshape(raw.n, -1).any(axis=1)
+                flags[hit] |= np.uint32(sat)
+    if raw.alarm is not None:
+        flags[raw.alarm] |= _ALARM
+    return flags
+
+
+def to_si(raw: RawBatch) -> dict[Channel, F64]:
+    """Counts to SI units; a value the chip marked invalid becomes NaN."""
+    out: dict[Channel, F64] = {}
+    for ch, rc in raw.channels.items():
+        si = rc.data.astype(np.float64) * rc.scale if rc.scale != 1.0 else rc.data.astype(float)
+        if rc.invalid is not None:
+            si[rc.invalid] = np.nan
+        out[ch] = si
+    return out
+
+
+def calibrate(cal: Calibration | None, si: dict[Channel, F64]) -> dict[Channel, F64]:
+    if cal is None or Channel.ACCEL not in si or Channel.GYRO not in si:
+        return si
+    accel, gyro = cal.apply(si[Channel.ACCEL], si[Channel.GYRO])
+    return {**si, Channel.ACCEL: accel, Channel.GYRO: gyro}
+
+
+def holes(raw: RawBatch, flags: U32) -> npt.NDArray[np.bool_] | None:
+    """Samples with no valid measurement at all (every channel but temperature invalid): they
+    are not published, and count as lost. None when there are none."""
+    motion = int(sum(raw.channels)) & ~int(Channel.TEMPERATURE)
+    if not motion or not (flags & INVALID_MASK).any():
+        return None
+    hole = (flags & np.uint32(motion)) == motion
+    return hole if bool(hole.any()) else None
 
 
 @dataclass(slots=True)
 class SampleBatch:
     first_seq: int
     lost_before: int
-    flags: int
+    flags: int  # per batch
     t_ns: npt.NDArray[np.int64]
-    accel: F64
-    gyro: F64
-    temperature_c: F64
-    valid: npt.NDArray[np.bool_] | None = None
+    channels: dict[Channel, F64]
+    sample_flags: U32
+    hole: npt.NDArray[np.bool_] | None = None
 
     @property
     def n(self) -> int:
@@ -47,37 +104,64 @@ class SampleBatch:
 
 
 class Pipeline:
-    """Holds the only state a batch needs (the sample-clock fit); everything else is pure."""
+    """Holds the only state a batch needs (the sample-clock fit, and where `seq` continues
+    from); everything else is pure."""
 
-    def __init__(self, clock: SampleClock, cal: Calibration | None, epoch_offset_ns: int) -> None:
+    def __init__(
+        self,
+        clock: SampleClock,
+        cal: Calibration | None,
+        epoch_offset_ns: int,
+        resume: tuple[int, int] | None = None,
+    ) -> None:
         self.clock = clock
         self.cal = cal
         self.epoch_offset_ns = epoch_offset_ns
+        self.period_ns = clock.period
+        # (next seq, last stamp in host ns) of a stream to continue: the sample clock takes it
+        # for reads it stamps; a driver's own stamps are shifted onto it (`_continue`)
+        self._resume = resume
+        self._seq_offset = 0
+        if resume is not None:
+            clock.resume(*resume)
+
+    def _continue(self, st: Stamped) -> Stamped:
+        """A driver that stamps its own samples counts `seq` from 0: shift it to continue the
+        stream being resumed, counting the samples the time elapsed since then held."""
+        if self._resume is not None and st.t_ns.size:
+            next_seq, last_t = self._resume
+            period = st.period_ns or self.period_ns
+            gap = max(0, round((int(st.t_ns[0]) - last_t) / period) - 1)
+            self._seq_offset = next_seq + gap - st.first_seq
+            self._resume = None
+            return Stamped(st.first_seq + self._seq_offset, st.lost_before + gap, st.t_ns,
+                           st.period_ns)  # fmt: skip
+        if self._seq_offset:
+            return Stamped(st.first_seq + self._seq_offset, st.lost_before, st.t_ns, st.period_ns)
+        return st
+
+    @property
+    def rate_hz(self) -> float:
+        """The chip's output rate as fitted from its sample clock."""
+        return 1e9 / self.period_ns
 
     def process(self, raw: RawBatch) -> SampleBatch:
-        st = raw.stamps
-        if st is None:  # the usual case: one die, stamped from its reads
-            st = self.clock.update(
-                raw.n,
-                raw.t_before_ns,
-                raw.t_after_ns,
-                raw.resync,
-                restart=raw.restart_ns,
-                full=raw.fifo_full,
-                ticks=raw.chip_ticks,
-                ticks_modulo=raw.ticks_modulo,
-            )
-        accel, gyro = calibrate(self.cal, *to_si(raw))
-        flags = (FLAG_CALIBRATED if self.cal is not None else 0) | (
+        st = stamp(self.clock, raw)
+        if not isinstance(raw.timing, FifoRead):
+            st = self._continue(st)
+        if st.period_ns:
+            self.period_ns = st.period_ns
+        flags = sample_flags(raw)
+        channels = calibrate(self.cal, to_si(raw))
+        batch_flags = (FLAG_CALIBRATED if self.cal is not None else 0) | (
             FLAG_RESYNC if st.lost_before else 0
         )
         return SampleBatch(
             st.first_seq,
             st.lost_before,
-            flags,
+            batch_flags,
             st.t_ns + self.epoch_offset_ns,
-            accel,
-            gyro,
-            raw.temperature_c,
-            raw.valid,
+            channels,
+            flags,
+            holes(raw, flags),
         )

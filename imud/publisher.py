@@ -15,11 +15,14 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
+from imud.rt import go_realtime
+
 log = logging.getLogger("imud.publisher")
+QUEUE_DEPTH = 20_000  # batches: seconds of every device's stream
 
 
 class PublisherThread:
-    def __init__(self, depth: int = 20_000, realtime_priority: int | None = None) -> None:
+    def __init__(self, depth: int = QUEUE_DEPTH, realtime_priority: int | None = None) -> None:
         self.realtime_priority = realtime_priority
         self._q: queue.Queue[tuple[Callable[[bytes], Any], bytes, Any] | None] = queue.Queue(depth)
         self._thread = threading.Thread(target=self._run, name="publisher", daemon=True)
@@ -39,9 +42,7 @@ class PublisherThread:
         if self.realtime_priority:
             # it takes the GIL for every put: preempted by some other process while holding it,
             # it would stall the real-time bus workers (priority inversion). Rank just below them.
-            from imud.daemon import _realtime
-
-            _realtime(self.realtime_priority, "publisher")
+            go_realtime(self.realtime_priority, "publisher")
         while True:
             item = self._q.get()
             if item is None:

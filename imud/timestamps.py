@@ -48,9 +48,13 @@ class _Ring:
 
 @dataclass(slots=True)
 class Stamped:
+    """Stamps of a batch: `seq` of its first sample, chip samples lost right before it, one
+    host-clock instant per sample, and the chip's sample period as fitted so far."""
+
     first_seq: int
     lost_before: int
     t_ns: npt.NDArray[np.int64]
+    period_ns: float = 0.0
 
 
 class SampleClock:
@@ -205,6 +209,14 @@ class SampleClock:
 
         return min((k0 - 1, k0, k0 + 1), key=off_line)
 
+    def resume(self, next_seq: int, last_t_ns: int) -> None:
+        """Continue a stream stamped elsewhere (a bus process that died) up to `last_t_ns`,
+        whose next sample would have been `next_seq`: the first batch counts the gap from the
+        time elapsed since, at the nominal period."""
+        self.rebase()
+        self.k_last = next_seq - 1
+        self.last_ts = last_t_ns
+
     def rebase(self) -> None:
         """The chip was reinitialised: its sample grid restarted. Keep counting from the gap."""
         self._count = 0
@@ -250,7 +262,7 @@ class SampleClock:
                 if k_gone > self.k_last:
                     lost, self.k_last = k_gone - self.k_last, k_gone
                     self._last_tick = None  # k_last moved without a tick to go with it
-            return Stamped(self.k_last + 1, lost, np.zeros(0, dtype=np.int64))
+            return Stamped(self.k_last + 1, lost, np.zeros(0, dtype=np.int64), self.period)
         self._pending_resync = False
         self._pending_restart = None
         if self.k_last < 0:
@@ -283,4 +295,4 @@ class SampleClock:
             t = np.maximum(t, self.last_ts + 1 + np.arange(n, dtype=np.int64))
         self.last_ts = int(t[-1])
         self.k_last = k_new
-        return Stamped(first, lost, t)
+        return Stamped(first, lost, t, self.period)

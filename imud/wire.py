@@ -1,27 +1,33 @@
-"""The batch wire format (version 1), shared by the daemon and `imud.client`.
+"""The batch wire format (version 2), shared by the daemon and `imud.client`.
 
-Little-endian. A 32-byte header, the UTF-8 device name padded with zeros to a multiple of 8 bytes,
-then four arrays of N samples each: int64 t_ns, float32 accel[N][3] (m/s^2), float32 gyro[N][3]
-(rad/s), float32 temperature (deg C). See docs/wire-format.md.
+Little-endian. A 32-byte header, the UTF-8 device name padded with zeros to a multiple of 8
+bytes, then N int64 timestamps, N uint32 per-sample flags, and one float32 array per channel the
+header's channel mask names, in bit order (`imud.channels`). See docs/wire-format.md.
 """
 
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
 
+from imud.channels import CHANNELS, Channel, SampleFlag, channels_in
+
 MAGIC = b"IMUD"
-VERSION = 1
+VERSION = 2
 KIND_SAMPLES = 0
 KIND_TRUTH = 1
 FLAG_CALIBRATED = 1 << 0
 FLAG_RESYNC = 1 << 1
 HEADER = struct.Struct("<4sBBHQIIII")  # magic, version, kind, name_len, first_seq, count,
-#                                        flags, lost_before, reserved
+#                                        flags, lost_before, channel mask
 assert HEADER.size == 32
+_KNOWN = sum(CHANNELS)
+
+F32 = npt.NDArray[np.float32]
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,9 +38,8 @@ class Batch:
     flags: int
     lost_before: int
     t_ns: npt.NDArray[np.int64]
-    accel: npt.NDArray[np.float32]  # (N, 3)
-    gyro: npt.NDArray[np.float32]  # (N, 3)
-    temperature_c: npt.NDArray[np.float32]
+    sample_flags: npt.NDArray[np.uint32]
+    channels: dict[Channel, F32] = field(default_factory=dict)
 
     @property
     def count(self) -> int:
@@ -43,6 +48,33 @@ class Batch:
     @property
     def seq(self) -> npt.NDArray[np.int64]:
         return self.first_seq + np.arange(self.count, dtype=np.int64)
+
+    @property
+    def mask(self) -> Channel:
+        return Channel(sum(self.channels))
+
+    def get(self, channel: Channel) -> F32 | None:
+        return self.channels.get(channel)
+
+    def invalid(self, channel: Channel) -> npt.NDArray[np.bool_]:
+        """Per sample: the chip marked this channel's value invalid (it reads NaN)."""
+        return (self.sample_flags & np.uint32(channel)) != 0
+
+    def flagged(self, flag: SampleFlag) -> npt.NDArray[np.bool_]:
+        return (self.sample_flags & np.uint32(flag)) != 0
+
+    # the common channels by name; None when the batch does not carry them
+    @property
+    def accel(self) -> F32 | None:
+        return self.channels.get(Channel.ACCEL)
+
+    @property
+    def gyro(self) -> F32 | None:
+        return self.channels.get(Channel.GYRO)
+
+    @property
+    def temperature_c(self) -> F32 | None:
+        return self.channels.get(Channel.TEMPERATURE)
 
 
 class WireError(ValueError):
@@ -53,9 +85,8 @@ def encode(
     device: str,
     first_seq: int,
     t_ns: npt.ArrayLike,
-    accel: npt.ArrayLike,
-    gyro: npt.ArrayLike,
-    temperature_c: npt.ArrayLike,
+    channels: Mapping[Channel, npt.ArrayLike],
+    sample_flags: npt.ArrayLike | None = None,
     *,
     kind: int = KIND_SAMPLES,
     flags: int = 0,
@@ -65,42 +96,57 @@ def encode(
     t = np.ascontiguousarray(t_ns, dtype="<i8")
     n = t.shape[0]
     pad = (-len(name)) % 8
-    head = HEADER.pack(MAGIC, VERSION, kind, len(name), first_seq, n, flags, lost_before, 0)
-    return b"".join(
-        (
-            head,
-            name,
-            b"\0" * pad,
-            t.tobytes(),
-            np.ascontiguousarray(accel, dtype="<f4").reshape(n, 3).tobytes(),
-            np.ascontiguousarray(gyro, dtype="<f4").reshape(n, 3).tobytes(),
-            np.ascontiguousarray(temperature_c, dtype="<f4").reshape(n).tobytes(),
-        )
-    )
+    mask = 0
+    parts: list[bytes] = []
+    for ch in channels_in(sum(channels)):
+        width = CHANNELS[ch].width
+        arr = np.ascontiguousarray(channels[ch], dtype="<f4")
+        if arr.size != n * width:
+            raise WireError(f"{CHANNELS[ch].key}: {arr.shape} values for {n} samples")
+        parts.append(arr.tobytes())
+        mask |= ch
+    if sample_flags is None:
+        sf = bytes(4 * n)
+    else:
+        sf = np.ascontiguousarray(sample_flags, dtype="<u4").reshape(n).tobytes()
+    head = HEADER.pack(MAGIC, VERSION, kind, len(name), first_seq, n, flags, lost_before, mask)
+    return b"".join((head, name, b"\0" * pad, t.tobytes(), sf, *parts))
 
 
 def decode(buf: bytes) -> Batch:
-    """Zero-copy views into `buf`. Raises `WireError` naming what is wrong."""
+    """Zero-copy views into `buf`. Raises `WireError` naming what is wrong, and where."""
     if len(buf) < HEADER.size:
         raise WireError(f"batch too short: {len(buf)} bytes, the header alone is {HEADER.size}")
-    magic, version, kind, name_len, first_seq, n, flags, lost, _ = HEADER.unpack_from(buf)
+    magic, version, kind, name_len, first_seq, n, flags, lost, mask = HEADER.unpack_from(buf)
     if magic != MAGIC:
         raise WireError(f"bad magic {magic!r} at byte 0, expected {MAGIC!r}")
     if version != VERSION:
-        raise WireError(f"wire version {version} at byte 4; this decoder reads {VERSION}")
+        raise WireError(
+            f"wire version {version} at byte 4; this decoder reads version {VERSION} "
+            "(docs/wire-format.md): upgrade the side that is older"
+        )
+    if mask & ~_KNOWN:
+        raise WireError(
+            f"channel mask 0x{mask:x} at byte 28 names channels this decoder does not know "
+            f"(known: 0x{_KNOWN:x}): upgrade imud on the receiving side"
+        )
+    chans = channels_in(mask)
     off = HEADER.size + name_len + (-name_len) % 8
-    need = off + n * (8 + 12 + 12 + 4)
+    need = off + n * (8 + 4 + 4 * sum(CHANNELS[c].width for c in chans))
     if len(buf) != need:
-        raise WireError(f"batch of {n} samples needs {need} bytes, got {len(buf)}")
+        raise WireError(f"batch of {n} samples with mask 0x{mask:x} needs {need} bytes, got {len(buf)}")
     try:
         device = bytes(buf[HEADER.size : HEADER.size + name_len]).decode()
     except UnicodeDecodeError as e:
         raise WireError(f"device name at byte {HEADER.size + e.start} is not UTF-8") from None
     t = np.frombuffer(buf, "<i8", n, off)
     off += 8 * n
-    acc = np.frombuffer(buf, "<f4", 3 * n, off).reshape(n, 3)
-    off += 12 * n
-    gyr = np.frombuffer(buf, "<f4", 3 * n, off).reshape(n, 3)
-    off += 12 * n
-    temp = np.frombuffer(buf, "<f4", n, off)
-    return Batch(device, kind, first_seq, flags, lost, t, acc, gyr, temp)
+    sf = np.frombuffer(buf, "<u4", n, off)
+    off += 4 * n
+    out: dict[Channel, F32] = {}
+    for c in chans:
+        width = CHANNELS[c].width
+        a = np.frombuffer(buf, "<f4", width * n, off)
+        out[c] = a.reshape(n, width) if width > 1 else a
+        off += 4 * width * n
+    return Batch(device, kind, first_seq, flags, lost, t, sf, out)

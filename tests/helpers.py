@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from imud.buses.connect import connect
+from imud.channels import Channel
 from imud.clock import VirtualClock
 from imud.config import parse_config
 from imud.device import DeviceRunner
@@ -73,12 +74,18 @@ def make_rig(device: dict[str, Any], sim: dict[str, Any] | None = None) -> Rig:
 
 
 def concat(batches: list[Batch]) -> dict[str, np.ndarray]:
+    """Measured or truth batches joined: seq, t_ns, flags and the accel/gyro/temperature arrays
+    (float64)."""
+    def cat(ch: Channel) -> np.ndarray:
+        return np.concatenate([b.channels[ch] for b in batches]).astype(np.float64)
+
     return {
         "seq": np.concatenate([b.seq for b in batches]),
         "t_ns": np.concatenate([b.t_ns for b in batches]),
-        "accel": np.concatenate([b.accel for b in batches]).astype(np.float64),
-        "gyro": np.concatenate([b.gyro for b in batches]).astype(np.float64),
-        "temp": np.concatenate([b.temperature_c for b in batches]).astype(np.float64),
+        "flags": np.concatenate([b.sample_flags for b in batches]),
+        "accel": cat(Channel.ACCEL),
+        "gyro": cat(Channel.GYRO),
+        "temp": cat(Channel.TEMPERATURE),
     }
 
 

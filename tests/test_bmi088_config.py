@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 
 from imud.buses.models import I2cBus, SimBus, SpiBus
-from imud.chips.bmi088 import Bmi088Config
+from imud.chips.bmi088.config import Bmi088Config
 from imud.config import ImudConfig, parse_config
 from imud.errors import ConfigError
 
@@ -84,17 +84,17 @@ def test_minimal_bmi088_gets_defaults() -> None:
     d = one(bmi())
     assert d.chip == "bmi088"
     assert (d.accel_range_g, d.accel_odr_hz, d.accel_filter) == (24, 1600.0, "normal")
-    assert (d.gyro_range_dps, d.gyro_odr_hz) == (2000, 2000)
+    assert (d.gyro_range_dps, d.odr_hz) == (2000, 2000)
     assert d.gyro_filter_hz == 532  # the widest filter at 2000 Hz
     assert isinstance(d.bus, SpiBus) and isinstance(d.gyro_bus, SpiBus)
     assert d.sim is None
 
 
 def test_odr_hz_is_the_gyro_rate() -> None:
-    d = one(bmi(gyro_odr_hz=400, accel_odr_hz=1600))
+    d = one(bmi(odr_hz=400, accel_odr_hz=1600))
     assert d.odr_hz == 400.0
     assert isinstance(d.odr_hz, float)
-    d = one(bmi(gyro_odr_hz=100, accel_odr_hz=12.5))
+    d = one(bmi(odr_hz=100, accel_odr_hz=12.5))
     assert d.odr_hz == 100.0
 
 
@@ -115,7 +115,7 @@ def test_die_buses_on_i2c() -> None:
 @pytest.mark.parametrize("code", sorted(BANDWIDTH_TABLE))
 def test_gyro_bandwidth_code_for_every_mode(code: int) -> None:
     odr, bw = BANDWIDTH_TABLE[code]
-    d = one(bmi(gyro_odr_hz=odr, gyro_filter_hz=bw))
+    d = one(bmi(odr_hz=odr, gyro_filter_hz=bw))
     assert d.gyro_filter_hz == bw
     assert d.gyro_bandwidth_code() == code
 
@@ -125,7 +125,7 @@ def test_gyro_bandwidth_code_for_every_mode(code: int) -> None:
     [(2000, 532, 0x00), (1000, 116, 0x02), (400, 47, 0x03), (200, 64, 0x06), (100, 32, 0x07)],
 )
 def test_default_gyro_filter_is_the_widest(odr: int, widest: int, code: int) -> None:
-    d = one(bmi(gyro_odr_hz=odr))
+    d = one(bmi(odr_hz=odr))
     assert d.gyro_filter_hz == widest
     assert d.gyro_bandwidth_code() == code
 
@@ -184,13 +184,13 @@ def test_unknown_accel_filter_rejected() -> None:
 
 @pytest.mark.parametrize("odr", [100, 200, 400, 1000, 2000])
 def test_every_gyro_odr_accepted(odr: int) -> None:
-    assert one(bmi(gyro_odr_hz=odr)).gyro_odr_hz == odr
+    assert one(bmi(odr_hz=odr)).odr_hz == odr
 
 
 @pytest.mark.parametrize("odr", [50, 800, 1600, 4000])
 def test_other_gyro_odrs_rejected(odr: int) -> None:
-    msg = only_error(bmi(gyro_odr_hz=odr))
-    assert f"gyro_odr_hz = {odr}" in msg
+    msg = only_error(bmi(odr_hz=odr))
+    assert f"odr_hz = {odr}" in msg
     assert all(str(v) in msg for v in (100, 200, 400, 1000, 2000)), msg
 
 
@@ -205,10 +205,10 @@ def test_other_gyro_odrs_rejected(odr: int) -> None:
     ],
 )
 def test_gyro_filter_not_available_at_odr_rejected(odr: int, bad: int, listed: str) -> None:
-    msg = only_error(bmi(gyro_odr_hz=odr, gyro_filter_hz=bad))
+    msg = only_error(bmi(odr_hz=odr, gyro_filter_hz=bad))
     assert "device[0] 'bmi0' (bmi088)" in msg
     assert f"gyro_filter_hz = {bad}" in msg
-    assert f"gyro_odr_hz = {odr}" in msg
+    assert f"odr_hz = {odr}" in msg
     assert f"filters at {listed} Hz" in msg  # the fix: the values allowed at this rate
 
 
@@ -249,7 +249,7 @@ def test_gyro_spi_faster_than_10mhz_rejected() -> None:
 def test_full_rates_fit_400khz_i2c() -> None:
     assert i2c_need_bps(1600, 2000) == pytest.approx(261_000)  # < 400 kbit/s
     d = one(bmi(i2c(0x18, 400_000), i2c(0x68)))
-    assert (d.accel_odr_hz, d.gyro_odr_hz) == (1600.0, 2000)
+    assert (d.accel_odr_hz, d.odr_hz) == (1600.0, 2000)
 
 
 def test_full_rates_rejected_on_100khz_i2c_naming_speed_and_fix() -> None:
@@ -274,10 +274,10 @@ def test_full_rates_rejected_on_100khz_i2c_naming_speed_and_fix() -> None:
 )
 def test_100khz_i2c_boundary(accel: float, gyro: int, kbps: int, fits: bool) -> None:
     assert round(i2c_need_bps(accel, gyro) / 1e3) == kbps
-    dev = bmi(i2c(0x18, 100_000), i2c(0x68), accel_odr_hz=accel, gyro_odr_hz=gyro)
+    dev = bmi(i2c(0x18, 100_000), i2c(0x68), accel_odr_hz=accel, odr_hz=gyro)
     if fits:
         d = one(dev)
-        assert (d.accel_odr_hz, d.gyro_odr_hz) == (accel, gyro)
+        assert (d.accel_odr_hz, d.odr_hz) == (accel, gyro)
     else:
         msg = only_error(dev)
         assert f"accel {accel:g} Hz + gyro {gyro} Hz need about {kbps} kbit/s" in msg

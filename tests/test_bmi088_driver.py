@@ -7,7 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from imud.chips import bmi088_fifo as f
+from imud.chips.bmi088 import decode as d
+from imud.chips.bmi088 import registers as R
+from imud.chips.bmi088.registers import AccelRegister as A
+from imud.chips.bmi088.registers import GyroRegister as G
 from tests.helpers import Rig, concat, make_rig, match_truth
 
 G = 9.80665
@@ -39,7 +42,7 @@ def _settled(rig: Rig, after_s: float = 1.0) -> tuple[dict[str, np.ndarray], ...
     [(2000, 1600, SPI), (2000, 1600, I2C), (1000, 400, SPI), (400, 800, SPI), (100, 12.5, I2C)],
 )
 def test_rates_follow_the_gyro_die_clock(gyro_odr: int, accel_odr: float, buses: Buses) -> None:
-    rig = _rig(buses, {"seed": 1, "errors": {}}, gyro_odr_hz=gyro_odr, accel_odr_hz=accel_odr)
+    rig = _rig(buses, {"seed": 1, "errors": {}}, odr_hz=gyro_odr, accel_odr_hz=accel_odr)
     seconds = 4.0 if gyro_odr >= 1000 else 20.0
     rig.run(seconds, jitter_ns=200_000)
     m = concat(rig.batches())
@@ -112,7 +115,7 @@ def test_constant_rotation_about_z_reads_1_745_rad_s_with_noise() -> None:
 
 
 def test_overflow_of_both_fifos_is_counted_exactly() -> None:
-    rig = _rig(sim={"seed": 6}, gyro_odr_hz=2000, accel_odr_hz=1600)
+    rig = _rig(sim={"seed": 6}, odr_hz=2000, accel_odr_hz=1600)
     rig.run(3.0, jitter_ns=100_000)
     # 70 ms overflows the gyro FIFO (50 ms) only; 200 ms both; 500 ms makes the accel skip
     # count saturate at 255 ("more than 255"), so its gap is judged from the clock
@@ -136,10 +139,10 @@ def test_overflow_of_both_fifos_is_counted_exactly() -> None:
 def test_gyro_die_glitch_reinitialises_both() -> None:
     rig = _rig(sim={"seed": 7})
     rig.run(1.0)
-    rig.sim.gyro.regs[f.GYR_RANGE] = 3  # 250 deg/s, set behind our back
+    rig.sim.gyro.regs[G.GYRO_RANGE] = 3  # 250 deg/s, set behind our back
     rig.run(1.0)
     assert rig.driver.counters.bad_registers >= 1 and rig.runner.restarts == 1
-    assert rig.sim.gyro.regs[f.GYR_RANGE] == 0 and rig.runner.state == "running"
+    assert rig.sim.gyro.regs[G.GYRO_RANGE] == 0 and rig.runner.state == "running"
     m = concat(rig.batches())
     assert np.all(np.diff(m["seq"]) >= 1)
     assert rig.runner.lost_samples == (np.diff(m["seq"]) - 1).sum() > 0
@@ -149,7 +152,7 @@ def test_accel_die_reset_behind_our_back_is_noticed() -> None:
     """A brown-out resets the accel die: suspended again, in I2C mode again."""
     rig = _rig(sim={"seed": 8})
     rig.run(1.0)
-    rig.sim.accel.write(f.ACC_SOFTRESET, bytes([f.SOFTRESET_CMD]))
+    rig.sim.accel.write(A.ACC_SOFTRESET, bytes([R.SOFTRESET_CMD]))
     rig.run(1.5)
     assert rig.runner.restarts == 1 and rig.runner.state == "running"
     assert rig.sim.accel.sampling and rig.sim.accel.spi_mode

@@ -2,7 +2,7 @@
 
 The accel die is reached as the driver reaches it: `SpiDevice` (one dummy byte) over `SimSpiDev`,
 or `I2CDevice` over `SimI2CBus` (which, past 32 bytes, uses smbus2's own `i2c_msg`). Expected
-values come from the facts sheet (/work/shared/reference/chips-invensense-bosch.md, section 3) and
+values come from the facts sheet (docs/chips/bmi088.md) and
 the simulator's stated model (imud/sim/bmi088.py docstring); each is worked out in the test.
 Virtual time only moves when a test advances the clock, so counts of samples are exact up to one
 sample at either end of an interval.
@@ -18,9 +18,12 @@ import pytest
 
 from imud.buses.i2c import I2CDevice
 from imud.buses.spi import SpiDevice
-from imud.chips import bmi088_fifo as f
+from imud.chips.bmi088 import decode as d
+from imud.chips.bmi088 import registers as R
+from imud.chips.bmi088.registers import AccelRegister as A
+from imud.chips.bmi088.registers import GyroRegister as G
 from imud.clock import VirtualClock
-from imud.sim.bmi088 import Bmi088Sim
+from imud.chips.bmi088.sim import Bmi088Sim
 from imud.sim.i2c import SimI2CBus
 from imud.sim.settings import SimSettings
 from imud.sim.spi import SimSpiDev
@@ -47,8 +50,8 @@ def accel_spi(sim: Bmi088Sim, dummy_bytes: int = 1) -> SpiDevice:
 
 def accel_spi_ready(sim: Bmi088Sim) -> SpiDevice:
     acc = accel_spi(sim)
-    acc.read_u8(f.ACC_CHIP_ID)  # the dummy read that switches the die to SPI
-    assert acc.read_u8(f.ACC_CHIP_ID) == f.ACC_CHIP_ID_VALUE
+    acc.read_u8(A.ACC_CHIP_ID)  # the dummy read that switches the die to SPI
+    assert acc.read_u8(A.ACC_CHIP_ID) == R.ACC_CHIP_ID_VALUE
     return acc
 
 
@@ -60,51 +63,51 @@ def i2c_dies(sim: Bmi088Sim) -> tuple[I2CDevice, I2CDevice]:
 
 
 def power_on(acc: SpiDevice | I2CDevice, clock: VirtualClock) -> None:
-    acc.write_u8(f.ACC_PWR_CONF, 0x00)  # active
+    acc.write_u8(A.ACC_PWR_CONF, 0x00)  # active
     clock.advance(5 * MS)
-    acc.write_u8(f.ACC_PWR_CTRL, 0x04)  # accel on
+    acc.write_u8(A.ACC_PWR_CTRL, 0x04)  # accel on
     clock.advance(5 * MS)
-    assert (acc.read_u8(f.ACC_PWR_CONF), acc.read_u8(f.ACC_PWR_CTRL)) == (0x00, 0x04)
+    assert (acc.read_u8(A.ACC_PWR_CONF), acc.read_u8(A.ACC_PWR_CTRL)) == (0x00, 0x04)
 
 
 def start_accel_fifo(
     acc: SpiDevice | I2CDevice, clock: VirtualClock, conf: int = ACC_NORMAL_1600
 ) -> None:
     power_on(acc, clock)
-    acc.write_u8(f.ACC_FIFO_CONFIG_1, 0x50)  # acc_en | the bit that must be 1
-    acc.write_u8(f.ACC_CONF, conf)
-    assert acc.read_u8(f.ACC_CONF) == conf
-    assert acc.read_u8(f.ACC_FIFO_CONFIG_1) == 0x50
+    acc.write_u8(A.FIFO_CONFIG_1, 0x50)  # acc_en | the bit that must be 1
+    acc.write_u8(A.ACC_CONF, conf)
+    assert acc.read_u8(A.ACC_CONF) == conf
+    assert acc.read_u8(A.FIFO_CONFIG_1) == 0x50
 
 
 def accel_length(acc: SpiDevice | I2CDevice) -> int:
-    lsb, msb = acc.read(f.FIFO_LENGTH_0, 2)
-    return f.fifo_length(lsb, msb)
+    lsb, msb = acc.read(A.FIFO_LENGTH_0, 2)
+    return d.fifo_length(lsb, msb)
 
 
-def drain_accel(acc: SpiDevice | I2CDevice) -> f.AccelFifo:
+def drain_accel(acc: SpiDevice | I2CDevice) -> d.AccelFifo:
     """Read exactly what FIFO_LENGTH says (no over-read)."""
     n = accel_length(acc)
-    return f.decode_accel_fifo(acc.read(f.ACC_FIFO_DATA, n) if n else b"")
+    return d.decode_accel_fifo(acc.read(A.FIFO_DATA, n) if n else b"")
 
 
 def accel_data(acc: SpiDevice | I2CDevice) -> list[int]:
-    raw = acc.read(f.ACC_DATA, 6)
+    raw = acc.read(A.ACC_X_LSB, 6)
     return np.frombuffer(raw, dtype="<i2").astype(int).tolist()
 
 
 def gyro_status(gyr: SpiDevice | I2CDevice) -> tuple[bool, int]:
-    s = gyr.read_u8(f.GYR_FIFO_STATUS)
+    s = gyr.read_u8(G.FIFO_STATUS)
     return bool(s & 0x80), s & 0x7F
 
 
 def drain_gyro(gyr: SpiDevice | I2CDevice) -> np.ndarray:
     _, n = gyro_status(gyr)
-    return f.decode_gyro_fifo(gyr.read(f.GYR_FIFO_DATA, n * f.GYR_FRAME) if n else b"")
+    return d.decode_gyro_fifo(gyr.read(G.FIFO_DATA, n * R.GYRO_FRAME_BYTES) if n else b"")
 
 
 def gyro_data(gyr: SpiDevice | I2CDevice) -> list[int]:
-    return np.frombuffer(gyr.read(f.GYR_DATA, 6), dtype="<i2").astype(int).tolist()
+    return np.frombuffer(gyr.read(G.RATE_X_LSB, 6), dtype="<i2").astype(int).tolist()
 
 
 # --- accel die: SPI mode switch and the dummy byte -----------------------------------------------
@@ -114,51 +117,51 @@ def test_accel_first_spi_transfer_only_switches_to_spi() -> None:
     sim, _ = make()
     acc = accel_spi(sim)
     assert sim.accel.spi_mode is False
-    assert acc.read_u8(f.ACC_CHIP_ID) == 0x00  # the answer to the switching transfer is garbage
+    assert acc.read_u8(A.ACC_CHIP_ID) == 0x00  # the answer to the switching transfer is garbage
     assert sim.accel.spi_mode is True
-    assert acc.read_u8(f.ACC_CHIP_ID) == 0x1E
-    assert acc.read_u8(f.ACC_CHIP_ID) == 0x1E
+    assert acc.read_u8(A.ACC_CHIP_ID) == 0x1E
+    assert acc.read_u8(A.ACC_CHIP_ID) == 0x1E
 
 
 def test_accel_first_spi_transfer_write_does_not_happen() -> None:
     sim, _ = make()
     acc = accel_spi(sim)
-    acc.write_u8(f.ACC_RANGE, 0x03)  # first transfer: only switches the die to SPI
-    assert acc.read_u8(f.ACC_RANGE) == 0x01  # the reset value: the write was lost
-    acc.write_u8(f.ACC_RANGE, 0x03)
-    assert acc.read_u8(f.ACC_RANGE) == 0x03
+    acc.write_u8(A.ACC_RANGE, 0x03)  # first transfer: only switches the die to SPI
+    assert acc.read_u8(A.ACC_RANGE) == 0x01  # the reset value: the write was lost
+    acc.write_u8(A.ACC_RANGE, 0x03)
+    assert acc.read_u8(A.ACC_RANGE) == 0x03
 
 
 def test_accel_over_i2c_needs_no_switch() -> None:
     sim, _ = make()
     acc, _ = i2c_dies(sim)
-    assert acc.read_u8(f.ACC_CHIP_ID) == 0x1E
+    assert acc.read_u8(A.ACC_CHIP_ID) == 0x1E
     assert sim.accel.spi_mode is False
 
 
 def test_accel_soft_reset_puts_it_back_in_i2c_mode() -> None:
     sim, clock = make()
     acc = accel_spi_ready(sim)
-    acc.write_u8(f.ACC_RANGE, 0x03)
-    assert acc.read_u8(f.ACC_RANGE) == 0x03
-    acc.write_u8(f.ACC_SOFTRESET, f.SOFTRESET_CMD)
+    acc.write_u8(A.ACC_RANGE, 0x03)
+    assert acc.read_u8(A.ACC_RANGE) == 0x03
+    acc.write_u8(A.ACC_SOFTRESET, R.SOFTRESET_CMD)
     clock.advance(2 * MS)  # past the 1 ms reset
-    assert acc.read_u8(f.ACC_CHIP_ID) == 0x00  # switching again
-    assert acc.read_u8(f.ACC_CHIP_ID) == 0x1E
-    assert acc.read_u8(f.ACC_RANGE) == 0x01  # registers back to reset values
+    assert acc.read_u8(A.ACC_CHIP_ID) == 0x00  # switching again
+    assert acc.read_u8(A.ACC_CHIP_ID) == 0x1E
+    assert acc.read_u8(A.ACC_RANGE) == 0x01  # registers back to reset values
 
 
 def test_accel_soft_reset_busy_for_1ms() -> None:
     sim, clock = make()
     acc, _ = i2c_dies(sim)
-    acc.write_u8(f.ACC_RANGE, 0x02)
-    acc.write_u8(f.ACC_SOFTRESET, f.SOFTRESET_CMD)
+    acc.write_u8(A.ACC_RANGE, 0x02)
+    acc.write_u8(A.ACC_SOFTRESET, R.SOFTRESET_CMD)
     clock.advance(900_000)
-    assert acc.read_u8(f.ACC_CHIP_ID) == 0x00  # busy: reads zeros
-    acc.write_u8(f.ACC_RANGE, 0x03)  # and ignores writes
+    assert acc.read_u8(A.ACC_CHIP_ID) == 0x00  # busy: reads zeros
+    acc.write_u8(A.ACC_RANGE, 0x03)  # and ignores writes
     clock.advance(100_000)
-    assert acc.read_u8(f.ACC_CHIP_ID) == 0x1E
-    assert acc.read_u8(f.ACC_RANGE) == 0x01
+    assert acc.read_u8(A.ACC_CHIP_ID) == 0x1E
+    assert acc.read_u8(A.ACC_RANGE) == 0x01
 
 
 def test_accel_spi_reads_carry_one_dummy_byte() -> None:
@@ -166,22 +169,22 @@ def test_accel_spi_reads_carry_one_dummy_byte() -> None:
     spi = SimSpiDev(sim.accel, dummy_bytes=sim.accel.spi_dummy_bytes)
     assert sim.accel.spi_dummy_bytes == 1
     good, naive = SpiDevice(spi, dummy_bytes=1), SpiDevice(spi, dummy_bytes=0)
-    good.read_u8(f.ACC_CHIP_ID)  # switch to SPI
+    good.read_u8(A.ACC_CHIP_ID)  # switch to SPI
     # on the wire: address, dummy byte, then the register data
-    assert spi.xfer2([0x80 | f.ACC_CHIP_ID, 0, 0]) == [0, 0, 0x1E]
-    assert good.read(f.ACC_CONF, 2) == bytes([0xA8, 0x01])  # ACC_CONF, ACC_RANGE reset values
+    assert spi.xfer2([0x80 | A.ACC_CHIP_ID, 0, 0]) == [0, 0, 0x1E]
+    assert good.read(A.ACC_CONF, 2) == bytes([0xA8, 0x01])  # ACC_CONF, ACC_RANGE reset values
     # without skipping the dummy byte every value is shifted by one byte
-    assert naive.read_u8(f.ACC_CHIP_ID) == 0x00
-    assert naive.read(f.ACC_CONF, 2) == bytes([0x00, 0xA8])
-    assert naive.read(f.ACC_CHIP_ID, 2) == bytes([0x00, 0x1E])
+    assert naive.read_u8(A.ACC_CHIP_ID) == 0x00
+    assert naive.read(A.ACC_CONF, 2) == bytes([0x00, 0xA8])
+    assert naive.read(A.ACC_CHIP_ID, 2) == bytes([0x00, 0x1E])
 
 
 def test_gyro_spi_has_no_dummy_byte_and_no_mode_switch() -> None:
     sim, _ = make()
     assert sim.gyro.spi_dummy_bytes == 0
     gyr = SpiDevice(SimSpiDev(sim.gyro, dummy_bytes=sim.gyro.spi_dummy_bytes), dummy_bytes=0)
-    assert gyr.read_u8(f.GYR_CHIP_ID) == 0x0F  # the very first transfer answers
-    assert gyr.read(f.GYR_RANGE, 2) == bytes([0x00, 0x80])  # RANGE, BANDWIDTH reset values
+    assert gyr.read_u8(G.GYRO_CHIP_ID) == 0x0F  # the very first transfer answers
+    assert gyr.read(G.GYRO_RANGE, 2) == bytes([0x00, 0x80])  # RANGE, BANDWIDTH reset values
 
 
 # --- accel die: power --------------------------------------------------------------------------
@@ -190,14 +193,14 @@ def test_gyro_spi_has_no_dummy_byte_and_no_mode_switch() -> None:
 def test_accel_starts_suspended_without_fifo_data() -> None:
     sim, clock = make(clock_error=0.0)
     acc = accel_spi_ready(sim)
-    assert (acc.read_u8(f.ACC_PWR_CONF), acc.read_u8(f.ACC_PWR_CTRL)) == (0x03, 0x00)
-    acc.write_u8(f.ACC_FIFO_CONFIG_1, 0x50)
+    assert (acc.read_u8(A.ACC_PWR_CONF), acc.read_u8(A.ACC_PWR_CTRL)) == (0x03, 0x00)
+    acc.write_u8(A.FIFO_CONFIG_1, 0x50)
     clock.advance(100 * MS)
     assert accel_length(acc) == 0
-    acc.write_u8(f.ACC_PWR_CONF, 0x00)  # active, but the accel is not enabled yet
+    acc.write_u8(A.ACC_PWR_CONF, 0x00)  # active, but the accel is not enabled yet
     clock.advance(50 * MS)
     assert accel_length(acc) == 0
-    acc.write_u8(f.ACC_PWR_CTRL, 0x04)
+    acc.write_u8(A.ACC_PWR_CTRL, 0x04)
     clock.advance(50 * MS)
     n = accel_length(acc)
     # reset ODR 100 Hz: 50 ms holds 5 sample periods
@@ -207,53 +210,53 @@ def test_accel_starts_suspended_without_fifo_data() -> None:
 def test_accel_enabled_but_suspended_gives_no_data() -> None:
     sim, clock = make()
     acc = accel_spi_ready(sim)
-    acc.write_u8(f.ACC_FIFO_CONFIG_1, 0x50)
-    acc.write_u8(f.ACC_PWR_CTRL, 0x04)  # on, but PWR_CONF still 0x03: suspend
+    acc.write_u8(A.FIFO_CONFIG_1, 0x50)
+    acc.write_u8(A.ACC_PWR_CTRL, 0x04)  # on, but PWR_CONF still 0x03: suspend
     clock.advance(100 * MS)
-    assert acc.read_u8(f.ACC_PWR_CTRL) == 0x04
+    assert acc.read_u8(A.ACC_PWR_CTRL) == 0x04
     assert accel_length(acc) == 0
 
 
 def test_write_within_5ms_of_a_power_register_change_is_ignored() -> None:
     sim, clock = make()
     acc = accel_spi_ready(sim)
-    acc.write_u8(f.ACC_PWR_CONF, 0x00)
+    acc.write_u8(A.ACC_PWR_CONF, 0x00)
     clock.advance(4_900_000)
-    acc.write_u8(f.ACC_PWR_CTRL, 0x04)
-    acc.write_u8(f.ACC_RANGE, 0x02)
-    assert acc.read_u8(f.ACC_PWR_CTRL) == 0x00  # too early
-    assert acc.read_u8(f.ACC_RANGE) == 0x01
+    acc.write_u8(A.ACC_PWR_CTRL, 0x04)
+    acc.write_u8(A.ACC_RANGE, 0x02)
+    assert acc.read_u8(A.ACC_PWR_CTRL) == 0x00  # too early
+    assert acc.read_u8(A.ACC_RANGE) == 0x01
     clock.advance(100_000)  # 5 ms after the PWR_CONF change
-    acc.write_u8(f.ACC_PWR_CTRL, 0x04)
-    assert acc.read_u8(f.ACC_PWR_CTRL) == 0x04
-    acc.write_u8(f.ACC_RANGE, 0x02)  # within 5 ms of the PWR_CTRL change
-    assert acc.read_u8(f.ACC_RANGE) == 0x01
+    acc.write_u8(A.ACC_PWR_CTRL, 0x04)
+    assert acc.read_u8(A.ACC_PWR_CTRL) == 0x04
+    acc.write_u8(A.ACC_RANGE, 0x02)  # within 5 ms of the PWR_CTRL change
+    assert acc.read_u8(A.ACC_RANGE) == 0x01
     clock.advance(5 * MS)
-    acc.write_u8(f.ACC_RANGE, 0x02)
-    assert acc.read_u8(f.ACC_RANGE) == 0x02
+    acc.write_u8(A.ACC_RANGE, 0x02)
+    assert acc.read_u8(A.ACC_RANGE) == 0x02
 
 
 @pytest.mark.parametrize("code", [0x0, 0x1, 0x4, 0xD, 0xE, 0xF])
 def test_invalid_acc_conf_odr_code_ignored(code: int) -> None:
     sim, _ = make(clock_error=0.0)
     acc = accel_spi_ready(sim)
-    acc.write_u8(f.ACC_CONF, 0xA0 | code)
-    assert acc.read_u8(f.ACC_CONF) == 0xA8  # the reset value: normal, 100 Hz
+    acc.write_u8(A.ACC_CONF, 0xA0 | code)
+    assert acc.read_u8(A.ACC_CONF) == 0xA8  # the reset value: normal, 100 Hz
     assert sim.accel.rate_hz == 100.0
-    acc.write_u8(f.ACC_CONF, 0xA9)  # a valid code is taken
-    assert acc.read_u8(f.ACC_CONF) == 0xA9
+    acc.write_u8(A.ACC_CONF, 0xA9)  # a valid code is taken
+    assert acc.read_u8(A.ACC_CONF) == 0xA9
     assert sim.accel.rate_hz == 200.0
 
 
 @pytest.mark.parametrize(
     ("reg", "value", "expect"),
     [
-        (f.ACC_CHIP_ID, 0x55, 0x1E),  # read-only
-        (f.ACC_STATUS, 0xFF, 0x00),  # read-only (no data ready while suspended)
+        (A.ACC_CHIP_ID, 0x55, 0x1E),  # read-only
+        (A.ACC_STATUS, 0xFF, 0x00),  # read-only (no data ready while suspended)
         (0x30, 0x55, 0x00),  # not a register
         (0x7F, 0x55, 0x00),  # not a register
-        (f.ACC_PWR_CONF, 0x01, 0x03),  # only 0x00 and 0x03 exist
-        (f.ACC_PWR_CTRL, 0x02, 0x00),  # only 0x00 and 0x04 exist
+        (A.ACC_PWR_CONF, 0x01, 0x03),  # only 0x00 and 0x03 exist
+        (A.ACC_PWR_CTRL, 0x02, 0x00),  # only 0x00 and 0x04 exist
     ],
 )
 def test_accel_ignores_writes_to_read_only_unknown_or_invalid(
@@ -263,8 +266,8 @@ def test_accel_ignores_writes_to_read_only_unknown_or_invalid(
     acc = accel_spi_ready(sim)
     acc.write_u8(reg, value)
     assert acc.read_u8(reg) == expect
-    acc.write_u8(f.ACC_RANGE, 0x02)  # the same path does carry a valid write
-    assert acc.read_u8(f.ACC_RANGE) == 0x02
+    acc.write_u8(A.ACC_RANGE, 0x02)  # the same path does carry a valid write
+    assert acc.read_u8(A.ACC_RANGE) == 0x02
 
 
 # --- accel die: FIFO ---------------------------------------------------------------------------
@@ -285,9 +288,9 @@ def test_accel_fifo_frames_at_the_configured_odr(code: int) -> None:
     while clock.now_ns() < end:
         clock.advance(min(step_ns, end - clock.now_ns()))
         length = accel_length(acc)
-        data = acc.read(f.ACC_FIFO_DATA, length)
+        data = acc.read(A.FIFO_DATA, length)
         assert length % 7 == 0 and all(b == 0x84 for b in data[::7]), data[:14].hex()
-        fifo = f.decode_accel_fifo(data)
+        fifo = d.decode_accel_fifo(data)
         assert fifo.skipped_before == [] and fifo.corrupt_at is None
         n += len(fifo.accel)
     assert abs(n - seconds * odr * (1 + clock_error)) <= 1, (n, seconds * odr)
@@ -298,10 +301,10 @@ def test_accel_fifo_needs_acc_en() -> None:
     sim, clock = make()
     acc = accel_spi_ready(sim)
     power_on(acc, clock)
-    assert acc.read_u8(f.ACC_FIFO_CONFIG_1) == 0x10  # reset value: acc_en off
+    assert acc.read_u8(A.FIFO_CONFIG_1) == 0x10  # reset value: acc_en off
     clock.advance(100 * MS)
     assert accel_length(acc) == 0
-    assert acc.read_u8(f.ACC_STATUS) & 0x80  # but the die is sampling: data ready
+    assert acc.read_u8(A.ACC_STATUS) & 0x80  # but the die is sampling: data ready
 
 
 def test_stream_overflow_gives_a_skip_frame_counting_dropped_frames() -> None:
@@ -313,9 +316,9 @@ def test_stream_overflow_gives_a_skip_frame_counting_dropped_frames() -> None:
     newest = accel_data(acc)
     length = accel_length(acc)
     assert length == 146 * 7 + 2  # the frames and the skip frame
-    data = acc.read(f.ACC_FIFO_DATA, length)
-    assert data[0] == f.HDR_SKIP
-    fifo = f.decode_accel_fifo(data)
+    data = acc.read(A.FIFO_DATA, length)
+    assert data[0] == R.AccFifoHeader.SKIP
+    fifo = d.decode_accel_fifo(data)
     assert len(fifo.accel) == 146
     assert len(fifo.skipped_before) == 1
     at, count = fifo.skipped_before[0]
@@ -345,9 +348,9 @@ def test_fifo_mode_stops_when_full_and_keeps_the_oldest() -> None:
     sim, clock = make(clock_error=0.0)
     acc = accel_spi_ready(sim)
     start_accel_fifo(acc, clock)
-    acc.write_u8(f.ACC_FIFO_CONFIG_0, 0x01)  # FIFO mode; bit 1 reads 1 whatever is written
-    assert acc.read_u8(f.ACC_FIFO_CONFIG_0) == 0x03
-    acc.write_u8(f.ACC_SOFTRESET, f.ACC_FIFO_FLUSH_CMD)
+    acc.write_u8(A.FIFO_CONFIG_0, 0x01)  # FIFO mode; bit 1 reads 1 whatever is written
+    assert acc.read_u8(A.FIFO_CONFIG_0) == 0x03
+    acc.write_u8(A.ACC_SOFTRESET, R.ACC_FIFO_FLUSH_CMD)
     clock.advance(200 * MS)
     newest = accel_data(acc)
     assert accel_length(acc) == 146 * 7  # no skip frame in FIFO mode
@@ -365,14 +368,14 @@ def test_over_read_gives_sensortime_then_0x80() -> None:
     clock.advance(5 * MS)  # 8 frames
     n = accel_length(acc) // 7
     assert n in (7, 8)
-    data = acc.read(f.ACC_FIFO_DATA, 7 * n + 20)
-    assert data[7 * n] == f.HDR_SENSORTIME
-    assert set(data[7 * n + 4 :]) == {f.HDR_OVER_READ}
-    fifo = f.decode_accel_fifo(data)
+    data = acc.read(A.FIFO_DATA, 7 * n + 20)
+    assert data[7 * n] == R.AccFifoHeader.SENSORTIME
+    assert set(data[7 * n + 4 :]) == {R.AccFifoHeader.OVER_READ}
+    fifo = d.decode_accel_fifo(data)
     assert len(fifo.accel) == n and fifo.over_read and fifo.sensortime is not None
     assert fifo.sensortime == int.from_bytes(data[7 * n + 1 : 7 * n + 4], "little")
     # the sensortime frame holds the same counter as SENSORTIME_0..2, read at the same instant
-    assert fifo.sensortime == int.from_bytes(acc.read(f.SENSORTIME_0, 3), "little")
+    assert fifo.sensortime == int.from_bytes(acc.read(A.SENSORTIME_0, 3), "little")
     assert accel_length(acc) == 0
 
 
@@ -382,9 +385,9 @@ def test_sensortime_ticks_39_0625_us_on_the_dies_clock(clock_error: float) -> No
     acc = accel_spi_ready(sim)
 
     def sensortime() -> int:
-        data = acc.read(f.ACC_FIFO_DATA, 8)  # empty FIFO: sensortime frame, then over-read
-        assert data[0] == f.HDR_SENSORTIME and data[4:] == bytes([0x80] * 4)
-        st = f.decode_accel_fifo(data).sensortime
+        data = acc.read(A.FIFO_DATA, 8)  # empty FIFO: sensortime frame, then over-read
+        assert data[0] == R.AccFifoHeader.SENSORTIME and data[4:] == bytes([0x80] * 4)
+        st = d.decode_accel_fifo(data).sensortime
         assert st is not None
         return st
 
@@ -402,11 +405,11 @@ def test_fifo_flush_empties_the_fifo_and_keeps_the_config() -> None:
     start_accel_fifo(acc, clock)
     clock.advance(200 * MS)  # overflowed: frames and a pending skip frame
     assert accel_length(acc) == 1024
-    acc.write_u8(f.ACC_SOFTRESET, f.ACC_FIFO_FLUSH_CMD)
+    acc.write_u8(A.ACC_SOFTRESET, R.ACC_FIFO_FLUSH_CMD)
     assert accel_length(acc) == 0
-    assert acc.read_u8(f.ACC_CHIP_ID) == 0x1E  # not a reset: still in SPI mode, not busy
-    assert acc.read_u8(f.ACC_CONF) == ACC_NORMAL_1600
-    assert acc.read_u8(f.ACC_FIFO_CONFIG_1) == 0x50
+    assert acc.read_u8(A.ACC_CHIP_ID) == 0x1E  # not a reset: still in SPI mode, not busy
+    assert acc.read_u8(A.ACC_CONF) == ACC_NORMAL_1600
+    assert acc.read_u8(A.FIFO_CONFIG_1) == 0x50
     clock.advance(5 * MS)
     fifo = drain_accel(acc)
     assert fifo.skipped_before == []  # the overflow was flushed with the frames
@@ -420,11 +423,11 @@ def test_partly_read_frame_stays_in_the_fifo() -> None:
     drain_accel(acc)
     clock.advance(2 * MS)  # 3 frames at 1600 Hz (0.625 ms)
     assert accel_length(acc) == 21
-    first = acc.read(f.ACC_FIFO_DATA, 10)  # one frame and 3 bytes of the next
+    first = acc.read(A.FIFO_DATA, 10)  # one frame and 3 bytes of the next
     assert accel_length(acc) == 14
-    rest = acc.read(f.ACC_FIFO_DATA, 14)
+    rest = acc.read(A.FIFO_DATA, 14)
     assert rest[:3] == first[7:10]
-    assert len(f.decode_accel_fifo(first[:7] + rest).accel) == 3
+    assert len(d.decode_accel_fifo(first[:7] + rest).accel) == 3
 
 
 # --- accel die: temperature ----------------------------------------------------------------------
@@ -434,9 +437,9 @@ def test_partly_read_frame_stays_in_the_fifo() -> None:
 def test_temperature_register_decodes_to_the_set_temperature(temp_c: float) -> None:
     sim, _ = make(temperature_c=temp_c)
     acc = accel_spi_ready(sim)
-    msb, lsb = acc.read(f.TEMP_MSB, 2)
+    msb, lsb = acc.read(A.TEMP_MSB, 2)
     assert lsb & 0x1F == 0  # only bits 7:5 of TEMP_LSB carry data
-    assert f.temperature_c(msb, lsb) == pytest.approx(temp_c, abs=0.125)
+    assert d.temperature_c(msb, lsb) == pytest.approx(temp_c, abs=0.125)
 
 
 @pytest.mark.parametrize(
@@ -450,7 +453,7 @@ def test_temperature_register_decodes_to_the_set_temperature(temp_c: float) -> N
 def test_temperature_register_bytes(temp_c: float, msb: int, lsb: int) -> None:
     sim, _ = make(temperature_c=temp_c)
     acc, _ = i2c_dies(sim)
-    assert acc.read(f.TEMP_MSB, 2) == bytes([msb, lsb])
+    assert acc.read(A.TEMP_MSB, 2) == bytes([msb, lsb])
 
 
 def test_temperature_register_updates_every_1_28_s() -> None:
@@ -461,7 +464,7 @@ def test_temperature_register_updates_every_1_28_s() -> None:
 
     def temp_at(t_s: float) -> float:
         clock.advance(t0 + int(t_s * 1e9) - clock.now_ns())
-        return f.temperature_c(*acc.read(f.TEMP_MSB, 2))
+        return d.temperature_c(*acc.read(A.TEMP_MSB, 2))
 
     assert temp_at(1.2) == 25.0  # not updated yet
     assert temp_at(1.35) == pytest.approx(26.28, abs=0.125)  # the sample at 1.28 s
@@ -474,10 +477,10 @@ def test_temperature_after_soft_reset_is_the_current_one() -> None:
     acc, _ = i2c_dies(sim)
     power_on(acc, clock)
     clock.advance(12_000 * MS)  # the die is at about 37 C now
-    assert f.temperature_c(*acc.read(f.TEMP_MSB, 2)) > 35.0
-    acc.write_u8(f.ACC_SOFTRESET, f.SOFTRESET_CMD)
+    assert d.temperature_c(*acc.read(A.TEMP_MSB, 2)) > 35.0
+    acc.write_u8(A.ACC_SOFTRESET, R.SOFTRESET_CMD)
     clock.advance(2 * MS)
-    assert f.temperature_c(*acc.read(f.TEMP_MSB, 2)) > 35.0
+    assert d.temperature_c(*acc.read(A.TEMP_MSB, 2)) > 35.0
 
 
 # --- gyro die ----------------------------------------------------------------------------------
@@ -486,50 +489,50 @@ def test_temperature_after_soft_reset_is_the_current_one() -> None:
 def test_gyro_chip_id() -> None:
     sim, _ = make()
     acc, gyr = i2c_dies(sim)
-    assert gyr.read_u8(f.GYR_CHIP_ID) == 0x0F
-    assert acc.read_u8(f.ACC_CHIP_ID) == 0x1E  # the two dies answer on their own addresses
+    assert gyr.read_u8(G.GYRO_CHIP_ID) == 0x0F
+    assert acc.read_u8(A.ACC_CHIP_ID) == 0x1E  # the two dies answer on their own addresses
 
 
 def test_gyro_soft_reset_reads_zeros_for_30ms() -> None:
     sim, clock = make()
     acc, gyr = i2c_dies(sim)
-    acc.write_u8(f.ACC_RANGE, 0x02)
-    gyr.write_u8(f.GYR_RANGE, 0x03)
-    gyr.write_u8(f.GYR_BANDWIDTH, 0x02)
-    gyr.write_u8(f.GYR_FIFO_CONFIG_1, GYR_FIFO_MODE)
+    acc.write_u8(A.ACC_RANGE, 0x02)
+    gyr.write_u8(G.GYRO_RANGE, 0x03)
+    gyr.write_u8(G.GYRO_BANDWIDTH, 0x02)
+    gyr.write_u8(G.FIFO_CONFIG_1, GYR_FIFO_MODE)
     clock.advance(10 * MS)
     assert gyro_status(gyr)[1] > 0
-    gyr.write_u8(f.GYR_SOFTRESET, f.SOFTRESET_CMD)
+    gyr.write_u8(G.GYRO_SOFTRESET, R.SOFTRESET_CMD)
     clock.advance(10 * MS)
-    gyr.write_u8(f.GYR_RANGE, 0x02)  # ignored while busy
+    gyr.write_u8(G.GYRO_RANGE, 0x02)  # ignored while busy
     clock.advance(19_900_000)  # 29.9 ms
-    assert gyr.read_u8(f.GYR_CHIP_ID) == 0x00
-    assert gyr.read(f.GYR_RANGE, 2) == bytes(2)
+    assert gyr.read_u8(G.GYRO_CHIP_ID) == 0x00
+    assert gyr.read(G.GYRO_RANGE, 2) == bytes(2)
     clock.advance(100_000)  # 30 ms
-    assert gyr.read_u8(f.GYR_CHIP_ID) == 0x0F
-    assert gyr.read_u8(f.GYR_RANGE) == 0x00
-    assert gyr.read_u8(f.GYR_BANDWIDTH) == 0x80
-    assert gyr.read_u8(f.GYR_FIFO_CONFIG_1) == 0x00
+    assert gyr.read_u8(G.GYRO_CHIP_ID) == 0x0F
+    assert gyr.read_u8(G.GYRO_RANGE) == 0x00
+    assert gyr.read_u8(G.GYRO_BANDWIDTH) == 0x80
+    assert gyr.read_u8(G.FIFO_CONFIG_1) == 0x00
     assert gyro_status(gyr) == (False, 0)
-    assert acc.read_u8(f.ACC_RANGE) == 0x02  # the accel die is not reset
+    assert acc.read_u8(A.ACC_RANGE) == 0x02  # the accel die is not reset
 
 
 def test_accel_soft_reset_leaves_the_gyro_alone() -> None:
     sim, _ = make()
     acc, gyr = i2c_dies(sim)
-    gyr.write_u8(f.GYR_RANGE, 0x03)
-    acc.write_u8(f.ACC_SOFTRESET, f.SOFTRESET_CMD)
-    assert gyr.read_u8(f.GYR_CHIP_ID) == 0x0F  # not busy
-    assert gyr.read_u8(f.GYR_RANGE) == 0x03
+    gyr.write_u8(G.GYRO_RANGE, 0x03)
+    acc.write_u8(A.ACC_SOFTRESET, R.SOFTRESET_CMD)
+    assert gyr.read_u8(G.GYRO_CHIP_ID) == 0x0F  # not busy
+    assert gyr.read_u8(G.GYRO_RANGE) == 0x03
 
 
 @pytest.mark.parametrize("code", sorted(GYR_ODR_CODES))
 def test_gyro_bandwidth_reads_back_with_bit7_and_sets_the_odr(code: int) -> None:
     sim, clock = make(clock_error=0.0)
     _, gyr = i2c_dies(sim)
-    gyr.write_u8(f.GYR_BANDWIDTH, code)
-    assert gyr.read_u8(f.GYR_BANDWIDTH) == 0x80 | code
-    gyr.write_u8(f.GYR_FIFO_CONFIG_1, GYR_FIFO_MODE)
+    gyr.write_u8(G.GYRO_BANDWIDTH, code)
+    assert gyr.read_u8(G.GYRO_BANDWIDTH) == 0x80 | code
+    gyr.write_u8(G.FIFO_CONFIG_1, GYR_FIFO_MODE)
     odr = GYR_ODR_CODES[code]
     clock.advance(int(40 / odr * 1e9))  # 40 periods at the table's ODR
     overrun, n = gyro_status(gyr)
@@ -540,10 +543,10 @@ def test_gyro_bandwidth_reads_back_with_bit7_and_sets_the_odr(code: int) -> None
 def test_gyro_bandwidth_code_0x02_gives_1000_hz() -> None:
     sim, clock = make(clock_error=0.0)
     _, gyr = i2c_dies(sim)
-    gyr.write_u8(f.GYR_FIFO_CONFIG_1, GYR_FIFO_MODE)
+    gyr.write_u8(G.FIFO_CONFIG_1, GYR_FIFO_MODE)
     clock.advance(20 * MS)
     assert gyro_status(gyr)[1] in (39, 40)  # reset: 2000 Hz
-    gyr.write_u8(f.GYR_BANDWIDTH, 0x02)
+    gyr.write_u8(G.GYRO_BANDWIDTH, 0x02)
     drain_gyro(gyr)
     clock.advance(20 * MS)
     assert gyro_status(gyr)[1] in (19, 20)  # 1000 Hz
@@ -553,27 +556,27 @@ def test_gyro_bandwidth_code_0x02_gives_1000_hz() -> None:
 def test_gyro_invalid_bandwidth_code_ignored(bad: int) -> None:
     sim, _ = make()
     _, gyr = i2c_dies(sim)
-    gyr.write_u8(f.GYR_BANDWIDTH, 0x03)
-    gyr.write_u8(f.GYR_BANDWIDTH, bad)
-    assert gyr.read_u8(f.GYR_BANDWIDTH) == 0x83
+    gyr.write_u8(G.GYRO_BANDWIDTH, 0x03)
+    gyr.write_u8(G.GYRO_BANDWIDTH, bad)
+    assert gyr.read_u8(G.GYRO_BANDWIDTH) == 0x83
 
 
 def test_gyro_range_codes_above_4_ignored() -> None:
     sim, _ = make()
     _, gyr = i2c_dies(sim)
-    gyr.write_u8(f.GYR_RANGE, 0x03)
-    assert gyr.read_u8(f.GYR_RANGE) == 0x03
+    gyr.write_u8(G.GYRO_RANGE, 0x03)
+    assert gyr.read_u8(G.GYRO_RANGE) == 0x03
     for bad in (0x05, 0x07, 0xFF):
-        gyr.write_u8(f.GYR_RANGE, bad)
-        assert gyr.read_u8(f.GYR_RANGE) == 0x03
-    gyr.write_u8(f.GYR_RANGE, 0x04)
-    assert gyr.read_u8(f.GYR_RANGE) == 0x04
+        gyr.write_u8(G.GYRO_RANGE, bad)
+        assert gyr.read_u8(G.GYRO_RANGE) == 0x03
+    gyr.write_u8(G.GYRO_RANGE, 0x04)
+    assert gyr.read_u8(G.GYRO_RANGE) == 0x04
 
 
 def test_gyro_ignores_writes_to_read_only_and_unknown_registers() -> None:
     sim, _ = make()
     _, gyr = i2c_dies(sim)
-    for reg in (f.GYR_CHIP_ID, f.GYR_FIFO_STATUS, 0x20, 0x7F):
+    for reg in (G.GYRO_CHIP_ID, G.FIFO_STATUS, 0x20, 0x7F):
         before = gyr.read_u8(reg)
         gyr.write_u8(reg, 0x5A)
         assert gyr.read_u8(reg) == before
@@ -582,7 +585,7 @@ def test_gyro_ignores_writes_to_read_only_and_unknown_registers() -> None:
 def test_gyro_bypass_mode_keeps_no_frames() -> None:
     sim, clock = make()
     _, gyr = i2c_dies(sim)
-    assert gyr.read_u8(f.GYR_FIFO_CONFIG_1) == 0x00
+    assert gyr.read_u8(G.FIFO_CONFIG_1) == 0x00
     clock.advance(100 * MS)
     assert gyro_status(gyr) == (False, 0)
     assert gyro_data(gyr) != [0, 0, 0]  # sampling all the same: the data registers (bias, noise)
@@ -591,12 +594,12 @@ def test_gyro_bypass_mode_keeps_no_frames() -> None:
 def test_gyro_fifo_mode_stops_when_full_with_overrun() -> None:
     sim, clock = make(clock_error=0.0)
     _, gyr = i2c_dies(sim)
-    gyr.write_u8(f.GYR_FIFO_CONFIG_1, GYR_FIFO_MODE)
+    gyr.write_u8(G.FIFO_CONFIG_1, GYR_FIFO_MODE)
     clock.advance(20 * MS)  # 40 frames at 2000 Hz
     overrun, n = gyro_status(gyr)
     assert not overrun and n in (39, 40)
     clock.advance(80 * MS)  # 200 frames in all: 100 kept
-    assert gyr.read_u8(f.GYR_FIFO_STATUS) == 0x80 | 100
+    assert gyr.read_u8(G.FIFO_STATUS) == 0x80 | 100
     newest = gyro_data(gyr)
     frames = drain_gyro(gyr)
     assert frames.shape == (100, 3)
@@ -608,7 +611,7 @@ def test_gyro_fifo_mode_stops_when_full_with_overrun() -> None:
 def test_gyro_stream_mode_keeps_the_newest() -> None:
     sim, clock = make(clock_error=0.0)
     _, gyr = i2c_dies(sim)
-    gyr.write_u8(f.GYR_FIFO_CONFIG_1, GYR_STREAM_MODE)
+    gyr.write_u8(G.FIFO_CONFIG_1, GYR_STREAM_MODE)
     clock.advance(100 * MS)
     assert gyro_status(gyr)[1] == 100
     newest = gyro_data(gyr)
@@ -622,12 +625,12 @@ def test_gyro_stream_mode_keeps_the_newest() -> None:
 def test_gyro_fifo_config_0_write_empties_the_fifo_and_clears_overrun() -> None:
     sim, clock = make(clock_error=0.0)
     _, gyr = i2c_dies(sim)
-    gyr.write_u8(f.GYR_FIFO_CONFIG_1, GYR_FIFO_MODE)
+    gyr.write_u8(G.FIFO_CONFIG_1, GYR_FIFO_MODE)
     clock.advance(100 * MS)
     assert gyro_status(gyr) == (True, 100)
-    gyr.write_u8(f.GYR_FIFO_CONFIG_0, 0x00)
+    gyr.write_u8(G.FIFO_CONFIG_0, 0x00)
     assert gyro_status(gyr) == (False, 0)
-    assert gyr.read_u8(f.GYR_FIFO_CONFIG_1) == GYR_FIFO_MODE  # mode kept: it fills again
+    assert gyr.read_u8(G.FIFO_CONFIG_1) == GYR_FIFO_MODE  # mode kept: it fills again
     clock.advance(5 * MS)
     assert gyro_status(gyr)[1] in (9, 10)
 
@@ -635,10 +638,10 @@ def test_gyro_fifo_config_0_write_empties_the_fifo_and_clears_overrun() -> None:
 def test_gyro_fifo_config_1_write_clears_overrun_and_keeps_the_frames() -> None:
     sim, clock = make(clock_error=0.0)
     _, gyr = i2c_dies(sim)
-    gyr.write_u8(f.GYR_FIFO_CONFIG_1, GYR_FIFO_MODE)
+    gyr.write_u8(G.FIFO_CONFIG_1, GYR_FIFO_MODE)
     clock.advance(100 * MS)
     assert gyro_status(gyr) == (True, 100)
-    gyr.write_u8(f.GYR_FIFO_CONFIG_1, GYR_FIFO_MODE)
+    gyr.write_u8(G.FIFO_CONFIG_1, GYR_FIFO_MODE)
     assert gyro_status(gyr) == (False, 100)
     assert drain_gyro(gyr).shape == (100, 3)
     clock.advance(5 * MS)
@@ -649,10 +652,10 @@ def test_gyro_fifo_config_1_write_clears_overrun_and_keeps_the_frames() -> None:
 def test_gyro_fifo_over_read_pads_with_zeros() -> None:
     sim, clock = make(clock_error=0.0)
     _, gyr = i2c_dies(sim)
-    gyr.write_u8(f.GYR_FIFO_CONFIG_1, GYR_FIFO_MODE)
+    gyr.write_u8(G.FIFO_CONFIG_1, GYR_FIFO_MODE)
     clock.advance(5 * MS)
     _, n = gyro_status(gyr)
-    data = gyr.read(f.GYR_FIFO_DATA, 6 * n + 12)
+    data = gyr.read(G.FIFO_DATA, 6 * n + 12)
     assert data[6 * n :] == bytes(12)
     assert gyro_status(gyr) == (False, 0)
 
@@ -664,13 +667,13 @@ def test_gyro_fifo_over_read_pads_with_zeros() -> None:
 def test_tumble_about_z_reads_1_745_rad_s(range_code: int) -> None:
     sim, clock = make(motion={"kind": "tumble", "rate_dps": (0, 0, 100)}, errors={"ideal": True})
     _, gyr = i2c_dies(sim)
-    gyr.write_u8(f.GYR_RANGE, range_code)
-    gyr.write_u8(f.GYR_BANDWIDTH, 0x02)  # 1000 Hz
-    gyr.write_u8(f.GYR_FIFO_CONFIG_1, GYR_FIFO_MODE)
+    gyr.write_u8(G.GYRO_RANGE, range_code)
+    gyr.write_u8(G.GYRO_BANDWIDTH, 0x02)  # 1000 Hz
+    gyr.write_u8(G.FIFO_CONFIG_1, GYR_FIFO_MODE)
     clock.advance(90 * MS)
     counts = drain_gyro(gyr)
     assert counts.shape[0] >= 80
-    scale = f.gyro_scale_rads(f.GYRO_RANGES_DPS[range_code])
+    scale = d.gyro_scale_rads(R.GYRO_RANGES_DPS[range_code])
     rate = counts.mean(axis=0) * scale
     assert rate[2] == pytest.approx(math.radians(100), abs=2e-3)  # 1.745 rad/s
     assert np.abs(rate[:2]).max() < 2e-3
@@ -684,13 +687,13 @@ def test_accel_at_rest_reads_one_g(range_code: int) -> None:
     sim, clock = make(errors={"ideal": True})
     acc = accel_spi_ready(sim)
     start_accel_fifo(acc, clock)
-    acc.write_u8(f.ACC_RANGE, range_code)
+    acc.write_u8(A.ACC_RANGE, range_code)
     drain_accel(acc)
     clock.advance(60 * MS)
     fifo = drain_accel(acc)
     assert len(fifo.accel) >= 90
-    range_g = f.ACCEL_RANGES_G[range_code]
-    ms2 = fifo.accel.mean(axis=0) * f.accel_scale_ms2(range_g)
+    range_g = R.ACCEL_RANGES_G[range_code]
+    ms2 = fifo.accel.mean(axis=0) * d.accel_scale_ms2(range_g)
     assert float(np.linalg.norm(ms2)) == pytest.approx(9.81, abs=0.02)
     assert ms2[2] == pytest.approx(G, abs=0.02)  # level: +g along body z
     assert fifo.accel[:, 2].mean() == pytest.approx(32768 / range_g, rel=0.005)  # 1 g in LSB
@@ -707,7 +710,7 @@ def test_accel_tilted_at_rest_reads_gravity_components() -> None:
     clock.advance(60 * MS)
     fifo = drain_accel(acc)  # 96 frames: 672 bytes, past the SMBus block limit
     assert len(fifo.accel) >= 90
-    ms2 = fifo.accel.mean(axis=0) * f.accel_scale_ms2(6)  # reset range: 6 g
+    ms2 = fifo.accel.mean(axis=0) * d.accel_scale_ms2(6)  # reset range: 6 g
     r, p = math.radians(roll), math.radians(pitch)
     expect = [-G * math.sin(p), G * math.cos(p) * math.sin(r), G * math.cos(p) * math.cos(r)]
     assert ms2 == pytest.approx(expect, abs=0.02)
@@ -721,8 +724,8 @@ def count_frames(sim: Bmi088Sim, clock: VirtualClock, seconds: float) -> tuple[i
     """Frames both dies produce in `seconds`, accel at 100 Hz and gyro at 100 Hz (code 0x07)."""
     acc, gyr = i2c_dies(sim)
     start_accel_fifo(acc, clock, conf=0xA8)
-    gyr.write_u8(f.GYR_BANDWIDTH, 0x07)
-    gyr.write_u8(f.GYR_FIFO_CONFIG_1, GYR_FIFO_MODE)
+    gyr.write_u8(G.GYRO_BANDWIDTH, 0x07)
+    gyr.write_u8(G.FIFO_CONFIG_1, GYR_FIFO_MODE)
     drain_accel(acc)
     drain_gyro(gyr)
     n_acc = n_gyr = 0

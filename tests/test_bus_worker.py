@@ -9,7 +9,7 @@ from typing import Any
 
 from imud.clock import VirtualClock
 from imud.config import parse_config
-from imud.daemon import BusWorker, _connector
+from imud.busworker import BusWorker, connector
 from imud.device import DeviceRunner
 from imud.sim.i2c import SimI2CBus
 

@@ -29,7 +29,7 @@ def test_check_config_sim_toml() -> None:
     assert [d["name"] for d in doc["device"]] == ["imu0", "imu1", "icm0", "bmi0"]
     assert [d["chip"] for d in doc["device"]] == ["mpu6050", "mpu6050", "icm42688p", "bmi088"]
     assert [d["odr_hz"] for d in doc["device"][:3]] == [1000.0, 500.0, 32000.0]
-    assert (doc["device"][3]["gyro_odr_hz"], doc["device"][3]["accel_odr_hz"]) == (2000, 1600.0)
+    assert (doc["device"][3]["odr_hz"], doc["device"][3]["accel_odr_hz"]) == (2000, 1600.0)
     assert [d["bus"]["address"] for d in doc["device"][:2]] == [0x68, 0x69]
     assert doc["device"][2]["bus"]["transport"] == "spi"
     assert doc["zenoh"]["listen"] == ["tcp/127.0.0.1:7447"]

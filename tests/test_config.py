@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from imud.buses.models import SimBus
-from imud.chips.mpu6050 import Mpu6050Config
+from imud.chips.mpu6050.config import Mpu6050Config
 from imud.config import ImudConfig, load_config
 from imud.errors import ConfigError
 

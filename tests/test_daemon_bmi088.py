@@ -21,7 +21,7 @@ chip = "bmi088"
 bus = { kind = "sim", bus = "spi1", transport = "spi", cs = 0, speed_hz = 10000000 }
 gyro_bus = { kind = "sim", bus = "spi1", transport = "spi", cs = 1, speed_hz = 10000000 }
 gyro_range_dps = 250
-gyro_odr_hz = 2000
+odr_hz = 2000
 accel_range_g = 6
 accel_odr_hz = 1600
 [device.sim]

@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 
 from imud.buses.models import SimBus, SpiBus
-from imud.chips.icm42688p import Icm42688pConfig
+from imud.chips.icm42688p.config import Icm42688pConfig
 from imud.config import ImudConfig, load_config, parse_config
 from imud.errors import ConfigError
 

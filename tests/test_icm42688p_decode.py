@@ -18,11 +18,12 @@ import numpy as np
 import pytest
 
 from imud.buses.spi import SpiDevice
-from imud.chips.base import DeviceIdentityError, start_blocking
-from imud.chips.icm42688p import (
+from imud.chips.api import start_blocking
+from imud.errors import DeviceIdentityError
+from imud.chips.icm42688p.config import Icm42688pConfig
+from imud.chips.icm42688p.driver import (
     PACKET3,
     PACKET4,
-    Icm42688pConfig,
     Icm42688pDriver,
     accel_scale_ms2,
     decode_packets,
@@ -30,7 +31,7 @@ from imud.chips.icm42688p import (
 )
 from imud.clock import VirtualClock
 from imud.config import parse_config
-from imud.sim.icm42688p import Icm42688pSim
+from imud.chips.icm42688p.sim import Icm42688pSim
 from imud.sim.spi import SimSpiDev
 
 G = 9.80665  # standard gravity, m/s^2

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from imud.chips import icm42688p as reg
+from imud.chips.icm42688p.registers import Bank0 as reg
 from tests.helpers import concat, make_rig, match_truth
 
 G = 9.80665

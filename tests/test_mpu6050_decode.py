@@ -14,9 +14,9 @@ import pytest
 
 from imud.buses.i2c import I2CDevice
 from imud.buses.models import SimBus
-from imud.chips.base import start_blocking
-from imud.chips.mpu6050 import (
-    Mpu6050Config,
+from imud.chips.api import start_blocking
+from imud.chips.mpu6050.config import Mpu6050Config
+from imud.chips.mpu6050.driver import (
     Mpu6050Driver,
     accel_scale_ms2,
     decode_fifo,
@@ -27,7 +27,7 @@ from imud.chips.mpu6050 import (
 from imud.clock import VirtualClock
 from imud.errors import BusError, DeviceIdentityError
 from imud.sim.i2c import SimI2CBus
-from imud.sim.mpu6050 import Mpu6050Sim
+from imud.chips.mpu6050.sim import Mpu6050Sim
 from imud.sim.settings import SimSettings
 
 G = 9.80665  # standard gravity, m/s^2

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from imud.chips import mpu6050 as reg
+from imud.chips.mpu6050.registers import Register as reg
 from tests.helpers import concat, make_rig, match_truth
 
 G = 9.80665

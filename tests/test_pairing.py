@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from imud.pairing import DiePairer
+from imud.chips.bmi088.pairing import DiePairer
 
 I64 = np.int64
 

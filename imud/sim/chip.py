@@ -8,11 +8,14 @@ to its registers and FIFO (`_emit`).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from imud.channels import Channel
+from imud.chips.api import SimDie, Truth
 from imud.clock import Clock
 from imud.sim.physics import ChipFigures, ErrorModel, MotionModel, TemperatureModel
 from imud.sim.settings import SimSettings
@@ -60,6 +63,15 @@ class SampledChip:
     # --- shared -----------------------------------------------------------------------------
     busy_until_ns = 0  # a chip busy resetting ignores the bus until then
 
+    @property
+    def dies(self) -> Sequence[SimDie]:
+        """A one-die chip is its own only die."""
+        return (self,)
+
+    def spi_select(self) -> bool:
+        """Chip-select edge: most chips answer the very first SPI transfer."""
+        return True
+
     def write(self, register: int, data: bytes) -> None:
         """Burst writes go to consecutive registers; a busy chip ignores them."""
         if self.clock.now_ns() < self.busy_until_ns:
@@ -100,14 +112,16 @@ class SampledChip:
                 del self._truth[: TRUTH_KEEP // 2]
         self.samples_produced += t_ns.shape[0]
 
-    def drain_truth(self) -> dict[str, Any] | None:
+    def drain_truth(self) -> Truth | None:
         if not self._truth:
             return None
         parts, self._truth = self._truth, []
-        return {
-            "index": parts[0]["index"],
-            "t_ns": np.concatenate([p["t_ns"] for p in parts]),
-            "accel": np.concatenate([p["accel"] for p in parts]),
-            "gyro": np.concatenate([p["gyro"] for p in parts]),
-            "temp": np.concatenate([p["temp"] for p in parts]),
-        }
+        return Truth(
+            int(parts[0]["index"]),
+            np.concatenate([p["t_ns"] for p in parts]),
+            {
+                Channel.ACCEL: np.concatenate([p["accel"] for p in parts]),
+                Channel.GYRO: np.concatenate([p["gyro"] for p in parts]),
+                Channel.TEMPERATURE: np.concatenate([p["temp"] for p in parts]),
+            },
+        )

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from imud.chips.base import ChipSim
+from imud.chips.api import SimDie
 
 I2C_M_RD = 0x0001
 
@@ -24,15 +24,15 @@ def _nak(addr: int) -> OSError:
 
 class SimI2CBus:
     def __init__(self, seed: int = 0) -> None:
-        self._devices: dict[int, tuple[ChipSim, float]] = {}
+        self._devices: dict[int, tuple[SimDie, float]] = {}
         self._rng = np.random.default_rng([seed, 0x12C])
         self._lock = threading.Lock()
         self.transfers = 0
 
-    def attach(self, address: int, chip: ChipSim, nak_rate: float = 0.0) -> None:
+    def attach(self, address: int, chip: SimDie, nak_rate: float = 0.0) -> None:
         self._devices[address] = (chip, nak_rate)
 
-    def _chip(self, addr: int) -> ChipSim:
+    def _chip(self, addr: int) -> SimDie:
         self.transfers += 1
         entry = self._devices.get(addr)
         if entry is None:

@@ -10,14 +10,14 @@ import threading
 
 import numpy as np
 
-from imud.chips.base import ChipSim
+from imud.chips.api import SimDie
 from imud.clock import VirtualClock
 
 
 class SimSpiDev:
     def __init__(
         self,
-        chip: ChipSim,
+        chip: SimDie,
         fault_rate: float = 0.0,
         seed: int = 0,
         dummy_bytes: int = 0,
@@ -43,8 +43,7 @@ class SimSpiDev:
             if self.transfer_time is not None:  # the chip answers mid-transfer
                 clock, fixed, per_byte = self.transfer_time
                 clock.advance((fixed + per_byte * len(values)) // 2)
-            selected = getattr(self.chip, "spi_selected", None)
-            if selected is not None and not selected():  # the chip was not in SPI mode yet
+            if not self.chip.spi_select():  # the chip was not in SPI mode yet
                 self._finish(len(values))
                 return [0] * len(values)
             first, rest = values[0], values[1:]

@@ -1,10 +1,8 @@
-"""Bosch BMI088 register facts and FIFO decoding, for both dies.
+"""BMI088 decoding, driver side: counts to SI, the temperature register, the FIFO frames of both
+dies (docs/chips/bmi088.md).
 
-Facts from /work/shared/reference/chips-invensense-bosch.md section 3 (Bosch's BMI08x API, PX4 and
-ArduPilot drivers): the accel die's 1024-byte FIFO holds framed data (a header byte per frame),
-little-endian int16 axes; the gyro die's FIFO holds 100 headerless 6-byte frames.
-
-This module is the decode layer only; the driver, config model and simulator build on it.
+The accel die's 1024-byte FIFO holds framed data (a header byte per frame), little-endian int16
+axes; the gyro die's FIFO holds 100 headerless 6-byte frames.
 """
 
 from __future__ import annotations
@@ -15,55 +13,23 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from imud.chips.bmi088.registers import (
+    ACC_FIFO_FRAME_BYTES,
+    ACC_FIFO_HEADER_MASK,
+    ACC_FRAME_BYTES,
+    FIFO_LENGTH_1_BITS,
+    GYRO_FRAME_BYTES,
+    TEMP_INVALID_MSB,
+    AccFifoHeader,
+)
+
 STANDARD_GRAVITY = 9.80665
-
-# Accel die
-ACC_CHIP_ID = 0x00
-ACC_CHIP_ID_VALUE = 0x1E
-ACC_STATUS = 0x03
-ACC_DATA = 0x12  # X LSB .. Z MSB, little-endian
-SENSORTIME_0 = 0x18
-TEMP_MSB = 0x22
-FIFO_LENGTH_0 = 0x24
-ACC_FIFO_DATA = 0x26
-ACC_CONF = 0x40
-ACC_RANGE = 0x41
-ACC_FIFO_CONFIG_0 = 0x48
-ACC_FIFO_CONFIG_1 = 0x49
-ACC_PWR_CONF = 0x7C
-ACC_PWR_CTRL = 0x7D
-ACC_SOFTRESET = 0x7E  # 0xB6 resets, 0xB0 flushes the FIFO
-SOFTRESET_CMD = 0xB6
-ACC_FIFO_FLUSH_CMD = 0xB0
-ACC_FIFO_SIZE = 1024
-SENSORTIME_S_PER_LSB = 39.0625e-6  # 24-bit counter
-# Gyro die
-GYR_CHIP_ID = 0x00
-GYR_CHIP_ID_VALUE = 0x0F
-GYR_DATA = 0x02  # X LSB .. Z MSB, little-endian
-GYR_FIFO_STATUS = 0x0E  # bit7 overrun, [6:0] frames
-GYR_RANGE = 0x0F
-GYR_BANDWIDTH = 0x10
-GYR_LPM1 = 0x11
-GYR_SOFTRESET = 0x14
-GYR_INT_CTRL = 0x15
-GYR_FIFO_CONFIG_0 = 0x3D  # watermark; writing it clears the FIFO
-GYR_FIFO_CONFIG_1 = 0x3E  # mode; writing it clears the overrun flag
-GYR_FIFO_DATA = 0x3F
-GYR_FIFO_FRAMES = 100
-GYR_FRAME = 6
-
-# Accel FIFO frame headers (bits 1:0 are interrupt tags, masked off) and their lengths
-HDR_ACCEL = 0x84
-HDR_SKIP = 0x40
-HDR_SENSORTIME = 0x44
-HDR_INPUT_CONFIG = 0x48
-HDR_DROP = 0x50
-HDR_OVER_READ = 0x80
-FRAME_LENGTH = {HDR_ACCEL: 7, HDR_SKIP: 2, HDR_SENSORTIME: 4, HDR_INPUT_CONFIG: 2, HDR_DROP: 2}
-
-ACCEL_RANGES_G = (3, 6, 12, 24)  # ACC_RANGE 0..3
-GYRO_RANGES_DPS = (2000, 1000, 500, 250, 125)  # GYRO_RANGE 0..4
+_HDR_ACCEL = int(AccFifoHeader.ACCEL)
+_HDR_SKIP = int(AccFifoHeader.SKIP)
+_HDR_SENSORTIME = int(AccFifoHeader.SENSORTIME)
+_HDR_OVER_READ = int(AccFifoHeader.OVER_READ)
+_FRAME_LENGTH = {int(h): n for h, n in ACC_FIFO_FRAME_BYTES.items()}
+TEMP_INVALID_U11 = TEMP_INVALID_MSB << 3
 
 
 def accel_scale_ms2(range_g: int) -> float:
@@ -76,8 +42,11 @@ def gyro_scale_rads(range_dps: int) -> float:
 
 
 def temperature_c(msb: int, lsb: int) -> float:
-    """TEMP_MSB/TEMP_LSB: an 11-bit two's-complement value, 0.125 C per LSB, 0 at 23 C."""
+    """TEMP_MSB/TEMP_LSB: an 11-bit two's-complement value, 0.125 C per LSB, 0 at 23 C; the
+    most negative value (TEMP_MSB 0x80) means no valid reading: NaN."""
     u11 = (msb << 3) | (lsb >> 5)
+    if u11 == TEMP_INVALID_U11:
+        return math.nan
     s11 = u11 - 2048 if u11 > 1023 else u11
     return s11 * 0.125 + 23.0
 
@@ -95,14 +64,14 @@ class AccelFifo:
 
 def _accel_run(buf: npt.NDArray[np.uint8], start: int) -> tuple[npt.NDArray[np.int32], int]:
     """The longest run of whole 7-byte accel frames from `start`, decoded with one view."""
-    n_max = (len(buf) - start) // 7
+    n_max = (len(buf) - start) // ACC_FRAME_BYTES
     if n_max == 0:
         return np.zeros((0, 3), dtype=np.int32), start
-    frames = buf[start : start + 7 * n_max].reshape(n_max, 7)
-    not_accel = np.flatnonzero((frames[:, 0] & 0xFC) != HDR_ACCEL)
+    frames = buf[start : start + ACC_FRAME_BYTES * n_max].reshape(n_max, ACC_FRAME_BYTES)
+    not_accel = np.flatnonzero((frames[:, 0] & ACC_FIFO_HEADER_MASK) != _HDR_ACCEL)
     n = int(not_accel[0]) if not_accel.size else n_max
     payload = np.ascontiguousarray(frames[:n, 1:7])
-    return payload.view("<i2").reshape(n, 3).astype(np.int32), start + 7 * n
+    return payload.view("<i2").reshape(n, 3).astype(np.int32), start + ACC_FRAME_BYTES * n
 
 
 def decode_accel_fifo(data: bytes) -> AccelFifo:
@@ -119,20 +88,20 @@ def decode_accel_fifo(data: bytes) -> AccelFifo:
             count += len(run)
         if pos >= len(buf):
             break
-        hdr = int(buf[pos]) & 0xFC
-        if hdr == HDR_OVER_READ or int(buf[pos]) == HDR_OVER_READ:
+        hdr = int(buf[pos]) & ACC_FIFO_HEADER_MASK
+        if hdr == _HDR_OVER_READ or int(buf[pos]) == _HDR_OVER_READ:
             out.over_read = True
             break
-        size = FRAME_LENGTH.get(hdr)
-        if size is None or hdr == HDR_ACCEL:  # unknown, or an accel frame cut short
-            if hdr != HDR_ACCEL:
+        size = _FRAME_LENGTH.get(hdr)
+        if size is None or hdr == _HDR_ACCEL:  # unknown, or an accel frame cut short
+            if hdr != _HDR_ACCEL:
                 out.corrupt_at = pos
             break
         if pos + size > len(buf):
             break  # a control frame cut off by the read length
-        if hdr == HDR_SKIP:
+        if hdr == _HDR_SKIP:
             out.skipped_before.append((count, int(buf[pos + 1])))
-        elif hdr == HDR_SENSORTIME:
+        elif hdr == _HDR_SENSORTIME:
             b = buf[pos + 1 : pos + 4]
             out.sensortime = int(b[0]) | int(b[1]) << 8 | int(b[2]) << 16
         pos += size
@@ -143,10 +112,10 @@ def decode_accel_fifo(data: bytes) -> AccelFifo:
 
 def fifo_length(lsb: int, msb: int) -> int:
     """FIFO_LENGTH_0/1: a 14-bit little-endian byte count."""
-    return ((msb & 0x3F) << 8) | lsb
+    return (FIFO_LENGTH_1_BITS.get(msb) << 8) | lsb
 
 
 def decode_gyro_fifo(data: bytes) -> npt.NDArray[np.int32]:
     """Whole 6-byte gyro frames (X, Y, Z little-endian int16) to (N, 3) counts."""
-    n = len(data) // GYR_FRAME
+    n = len(data) // GYRO_FRAME_BYTES
     return np.frombuffer(data, dtype="<i2", count=3 * n).reshape(n, 3).astype(np.int32)

@@ -8,13 +8,25 @@ from __future__ import annotations
 
 import numpy as np
 
-from imud.chips import mpu6050 as r
+from imud.chips.mpu6050.registers import (
+    ACCEL_RANGES_G,
+    FIFO_SIZE,
+    GYRO_RANGES_DPS,
+    WHO_AM_I_VALUE,
+    FifoEn,
+    IntStatus,
+    PwrMgmt1,
+    UserCtrl,
+)
+from imud.chips.mpu6050.registers import Register as R
 from imud.clock import Clock
 from imud.sim.chip import SampledChip
 from imud.sim.physics import ChipFigures, quantise
 from imud.sim.settings import SimSettings
 
-# Datasheet figures (seed-facts.md); bias and drift sigmas are typical turn-on spreads, moderated
+G = 9.80665
+# Noise densities from the datasheet (docs/chips/mpu6050.md); bias and drift sigmas are typical
+# turn-on spreads, moderated
 FIGURES = ChipFigures(
     accel_noise_ug_rthz=400.0,
     gyro_noise_dps_rthz=0.005,
@@ -30,16 +42,16 @@ FIGURES = ChipFigures(
 
 RESET_BUSY_NS = 20_000_000  # the chip ignores the bus while it reloads after DEVICE_RESET
 _WRITABLE = {
-    r.SMPLRT_DIV,
-    r.CONFIG,
-    r.GYRO_CONFIG,
-    r.ACCEL_CONFIG,
-    r.FIFO_EN,
-    r.INT_ENABLE,
-    r.SIGNAL_PATH_RESET,
-    r.USER_CTRL,
-    r.PWR_MGMT_1,
-    r.PWR_MGMT_2,
+    R.SMPLRT_DIV,
+    R.CONFIG,
+    R.GYRO_CONFIG,
+    R.ACCEL_CONFIG,
+    R.FIFO_EN,
+    R.INT_ENABLE,
+    R.SIGNAL_PATH_RESET,
+    R.USER_CTRL,
+    R.PWR_MGMT_1,
+    R.PWR_MGMT_2,
 }
 
 
@@ -56,8 +68,8 @@ class Mpu6050Sim(SampledChip):
     # --- chip state -----------------------------------------------------------------------
     def _power_on_reset(self) -> None:
         self.regs = bytearray(128)
-        self.regs[r.PWR_MGMT_1] = r.PWR1_SLEEP
-        self.regs[r.WHO_AM_I] = r.WHO_AM_I_VALUE
+        self.regs[R.PWR_MGMT_1] = PwrMgmt1.SLEEP
+        self.regs[R.WHO_AM_I] = WHO_AM_I_VALUE
         self.fifo = bytearray()
         self.last_fifo_byte = 0
         self.int_status = 0
@@ -70,7 +82,7 @@ class Mpu6050Sim(SampledChip):
 
     @property
     def dlpf_cfg(self) -> int:
-        return self.regs[r.CONFIG] & 0x07
+        return self.regs[R.CONFIG] & 0x07
 
     @property
     def internal_hz(self) -> float:
@@ -79,15 +91,19 @@ class Mpu6050Sim(SampledChip):
     @property
     def rate_hz(self) -> float:
         """True output rate: nominal internal/(1+div), off by the oscillator error."""
-        return self.internal_hz / (1 + self.regs[r.SMPLRT_DIV]) * (1 + self.clock_error)
+        return self.internal_hz / (1 + self.regs[R.SMPLRT_DIV]) * (1 + self.clock_error)
 
     @property
     def accel_lsb(self) -> float:
-        return r.accel_scale_ms2(r.ACCEL_RANGES_G[(self.regs[r.ACCEL_CONFIG] >> 3) & 3])
+        """m/s^2 per count: the ADC spans +-full scale over 2^16 counts."""
+        full_scale_g = ACCEL_RANGES_G[(self.regs[R.ACCEL_CONFIG] >> 3) & 3]
+        return 2 * full_scale_g * G / 65536
 
     @property
     def gyro_lsb(self) -> float:
-        return r.gyro_scale_rads(r.GYRO_RANGES_DPS[(self.regs[r.GYRO_CONFIG] >> 3) & 3])
+        """rad/s per count."""
+        full_scale_dps = GYRO_RANGES_DPS[(self.regs[R.GYRO_CONFIG] >> 3) & 3]
+        return 2 * full_scale_dps * (np.pi / 180) / 65536
 
     # --- sampling -------------------------------------------------------------------------
     def _emit(self, t_ns: np.ndarray, fm: np.ndarray, wm: np.ndarray, temp: np.ndarray) -> None:
@@ -97,8 +113,8 @@ class Mpu6050Sim(SampledChip):
         gyr = quantise(wm, self.gyro_lsb)
         self.latest_accel, self.latest_gyro = acc[-1], gyr[-1]
         self.latest_temp_raw = int(np.rint((temp[-1] - 36.53) * 340.0))
-        self.int_status |= r.INT_DATA_RDY
-        if self.regs[r.USER_CTRL] & r.USER_CTRL_FIFO_EN and self.regs[r.FIFO_EN]:
+        self.int_status |= IntStatus.DATA_RDY_INT
+        if self.regs[R.USER_CTRL] & UserCtrl.FIFO_EN and self.regs[R.FIFO_EN]:
             self._push_fifo(acc, gyr, temp)
 
     def _hold_accel_1khz(self, t_ns: np.ndarray, fm: np.ndarray) -> np.ndarray:
@@ -116,24 +132,24 @@ class Mpu6050Sim(SampledChip):
         return out
 
     def _push_fifo(self, acc: np.ndarray, gyr: np.ndarray, temp: np.ndarray) -> None:
-        en = self.regs[r.FIFO_EN]
+        en = self.regs[R.FIFO_EN]
         cols: list[np.ndarray] = []
-        if en & r.FIFO_EN_ACCEL:
+        if en & FifoEn.ACCEL:
             cols.append(acc)
-        if en & r.FIFO_EN_TEMP:
+        if en & FifoEn.TEMP:
             cols.append(np.rint((temp - 36.53) * 340.0).astype(np.int32)[:, None])
-        for bit, axis in ((r.FIFO_EN_XG, 0), (r.FIFO_EN_YG, 1), (r.FIFO_EN_ZG, 2)):
+        for bit, axis in ((FifoEn.XG, 0), (FifoEn.YG, 1), (FifoEn.ZG, 2)):
             if en & bit:
                 cols.append(gyr[:, axis : axis + 1])
         if not cols:
             return
         words = np.concatenate(cols, axis=1).astype(">i2")
         self.fifo += words.tobytes()
-        excess = len(self.fifo) - r.FIFO_SIZE
+        excess = len(self.fifo) - FIFO_SIZE
         if excess > 0:  # the MPU6050 overwrites its oldest bytes and flags the overflow
             del self.fifo[:excess]
             self.fifo_bytes_dropped += excess
-            self.int_status |= r.INT_FIFO_OFLOW
+            self.int_status |= IntStatus.FIFO_OFLOW_INT
 
     # --- bus side ---------------------------------------------------------------------------
     def _check_busy(self) -> None:
@@ -143,7 +159,7 @@ class Mpu6050Sim(SampledChip):
     def read(self, register: int, length: int) -> bytes:
         self._check_busy()
         self.advance()
-        if register == r.FIFO_R_W:
+        if register == R.FIFO_R_W:
             out = bytearray(self.fifo[:length])
             del self.fifo[:length]
             if out:
@@ -151,19 +167,19 @@ class Mpu6050Sim(SampledChip):
             out += bytes([self.last_fifo_byte]) * (length - len(out))
             return bytes(out)
         image = bytearray(self.regs)
-        image[r.INT_STATUS] = self.int_status
+        image[R.INT_STATUS] = self.int_status
         data = np.concatenate(
             [self.latest_accel, [getattr(self, "latest_temp_raw", 0)], self.latest_gyro]
         ).astype(">i2")
-        image[r.ACCEL_XOUT_H : r.GYRO_XOUT_H + 6] = data.tobytes()
-        image[r.FIFO_COUNT_H : r.FIFO_COUNT_H + 2] = len(self.fifo).to_bytes(2, "big")
+        image[R.ACCEL_XOUT_H : R.GYRO_XOUT_H + 6] = data.tobytes()
+        image[R.FIFO_COUNT_H : R.FIFO_COUNT_H + 2] = len(self.fifo).to_bytes(2, "big")
         end = min(register + length, len(image))
-        if register <= r.INT_STATUS < end:
+        if register <= R.INT_STATUS < end:
             self.int_status = 0  # INT_STATUS clears on read
         return bytes(image[register:end]) + bytes(register + length - end)
 
     def write(self, register: int, data: bytes) -> None:
-        self._check_busy()
+        self._check_busy()  # unlike the shared path, this chip NAKs while resetting
         self.advance()
         for i, value in enumerate(data):
             self._write_one(register + i, value)
@@ -172,23 +188,23 @@ class Mpu6050Sim(SampledChip):
         if reg not in _WRITABLE:
             return  # read-only or reserved: silicon ignores it
         now = self.clock.now_ns()
-        if reg == r.PWR_MGMT_1:
-            if value & r.PWR1_DEVICE_RESET:
+        if reg == R.PWR_MGMT_1:
+            if value & PwrMgmt1.DEVICE_RESET:
                 self._power_on_reset()
                 self.busy_until_ns = now + RESET_BUSY_NS
                 return
             was_active = self.sampling
             self.regs[reg] = value
-            self.sampling = not value & r.PWR1_SLEEP
+            self.sampling = not value & PwrMgmt1.SLEEP
             if self.sampling and not was_active:
                 self._anchor(now)
             return
-        if reg == r.USER_CTRL:
-            if value & r.USER_CTRL_FIFO_RESET:
+        if reg == R.USER_CTRL:
+            if value & UserCtrl.FIFO_RESET:
                 self.fifo.clear()
-            self.regs[reg] = value & ~(r.USER_CTRL_FIFO_RESET | 0x03)  # reset bits self-clear
+            self.regs[reg] = value & ~int(UserCtrl.FIFO_RESET | 0x03)  # reset bits self-clear
             return
         old = self.regs[reg]
         self.regs[reg] = value
-        if reg in (r.SMPLRT_DIV, r.CONFIG) and old != value:
+        if reg in (R.SMPLRT_DIV, R.CONFIG) and old != value:
             self._anchor(now)

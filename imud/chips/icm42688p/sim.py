@@ -2,10 +2,11 @@
 start-up times, 2 kB FIFO in bypass / stream / stop-on-full mode with packets 1-4, the FIFO
 timestamp counter on the chip's own clock, and the 'first count after a flush reads 0' quirk.
 
-Modelled behaviour beyond the facts sheet (docs/chips/icm42688p-facts.md), stated so it can be
+Modelled behaviour beyond the facts sheet (docs/chips/icm42688p.md), stated so it can be
 checked against silicon: the accel/gyro rate is the gyro's ODR (imud always sets both alike); in
 stream mode the oldest whole packets make room; reading an empty FIFO returns 0x80 bytes (the
-'FIFO empty' header); while resetting, reads return zeros.
+'FIFO empty' header); while resetting, reads return zeros; a saturated reading stops one count
+above the invalid marker, and the int8 FIFO temperature at -127.
 """
 
 from __future__ import annotations
@@ -13,12 +14,18 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from imud.chips import icm42688p as r
+from imud.chips.icm42688p import registers as R
+from imud.chips.icm42688p.registers import Bank0 as B0
+from imud.chips.icm42688p.registers import Bank1 as B1
+from imud.chips.icm42688p.registers import Bank2 as B2
 from imud.clock import Clock
 from imud.sim.chip import SampledChip
 from imud.sim.physics import ChipFigures, quantise
 from imud.sim.settings import SimSettings
 
+G = 9.80665
+# Noise densities from the datasheet (docs/chips/icm42688p.md); bias and drift sigmas are typical
+# turn-on spreads of the chip class, moderated
 FIGURES = ChipFigures(
     accel_noise_ug_rthz=70.0,
     gyro_noise_dps_rthz=0.0028,
@@ -37,19 +44,19 @@ GYRO_STARTUP_NS = 30_000_000
 RESET_BUSY_NS = 1_000_000
 TICK_NS = 1000.0 * 32 / 30  # FIFO timestamp tick at nominal clock (PLL 19.2 MHz, TDK eMD)
 INVALID16 = -32768
-ODR_BY_CODE = {code: hz for hz, code in r.ODR_CODES.items()}
+ODR_BY_CODE = {code: hz for hz, code in R.ODR_CODES.items()}
 
 _BANK0_DEFAULTS = {
-    r.WHO_AM_I: r.WHO_AM_I_VALUE, r.INTF_CONFIG0: 0x30, r.INTF_CONFIG1: 0x91,
-    r.GYRO_CONFIG0: 0x06, r.ACCEL_CONFIG0: 0x06, r.GYRO_ACCEL_CONFIG0: 0x11,
-    r.TMST_CONFIG: 0x23, r.DEVICE_CONFIG: 0x00,
+    B0.WHO_AM_I: R.WHO_AM_I_VALUE, B0.INTF_CONFIG0: 0x30, B0.INTF_CONFIG1: 0x91,
+    B0.GYRO_CONFIG0: 0x06, B0.ACCEL_CONFIG0: 0x06, B0.GYRO_ACCEL_CONFIG0: 0x11,
+    B0.TMST_CONFIG: 0x23, B0.DEVICE_CONFIG: 0x00,
 }  # fmt: skip
-_BANK1_DEFAULTS = {r.GYRO_CONFIG_STATIC2: 0xA0, r.GYRO_CONFIG_STATIC3: 0x0D,
-                   r.GYRO_CONFIG_STATIC4: 0xAA, r.GYRO_CONFIG_STATIC5: 0x80}  # fmt: skip
-_BANK2_DEFAULTS = {r.ACCEL_CONFIG_STATIC2: 0x30, r.ACCEL_CONFIG_STATIC3: 0x40,
-                   r.ACCEL_CONFIG_STATIC4: 0x62}  # fmt: skip
-_READ_ONLY0 = {r.WHO_AM_I, r.INT_STATUS, r.FIFO_COUNTH, r.FIFO_COUNTH + 1, r.FIFO_DATA,
-               *range(r.TEMP_DATA1, r.TEMP_DATA1 + 14)}  # fmt: skip
+_BANK1_DEFAULTS = {B1.GYRO_CONFIG_STATIC2: 0xA0, B1.GYRO_CONFIG_STATIC3: 0x0D,
+                   B1.GYRO_CONFIG_STATIC4: 0xAA, B1.GYRO_CONFIG_STATIC5: 0x80}  # fmt: skip
+_BANK2_DEFAULTS = {B2.ACCEL_CONFIG_STATIC2: 0x30, B2.ACCEL_CONFIG_STATIC3: 0x40,
+                   B2.ACCEL_CONFIG_STATIC4: 0x62}  # fmt: skip
+_READ_ONLY0 = {B0.WHO_AM_I, B0.INT_STATUS, B0.FIFO_COUNTH, B0.FIFO_COUNTL, B0.FIFO_DATA,
+               *range(B0.TEMP_DATA1, B0.TEMP_DATA1 + 14)}  # fmt: skip
 
 
 class Icm42688pSim(SampledChip):
@@ -83,19 +90,22 @@ class Icm42688pSim(SampledChip):
 
     @property
     def rate_hz(self) -> float:
-        code = self.regs[r.GYRO_CONFIG0] & 0x0F
+        code = self.regs[B0.GYRO_CONFIG0] & 0x0F
         return ODR_BY_CODE.get(code, 1000.0) * (1 + self.clock_error)
 
     @property
     def hires(self) -> bool:
-        return bool(self.regs[r.FIFO_CONFIG1] & r.FIFO_HIRES_EN)
+        return bool(self.regs[B0.FIFO_CONFIG1] & R.FifoConfig1.HIRES_EN)
 
     def _lsb(self, hires: bool) -> tuple[float, float]:
-        g = r.GYRO_RANGES_DPS[self.regs[r.GYRO_CONFIG0] >> 5]
-        a = r.ACCEL_RANGES_G[(self.regs[r.ACCEL_CONFIG0] >> 5) & 3]
+        """SI units per count: +-full scale spans 2^16 (2^20) counts; full scale halves with
+        each FS_SEL step from 2000 deg/s and 16 g."""
+        g_fs = 2000.0 / 2 ** (self.regs[B0.GYRO_CONFIG0] >> 5)
+        a_fs = 16.0 / 2 ** ((self.regs[B0.ACCEL_CONFIG0] >> 5) & 3)
         if hires:  # only 2000 deg/s and 16 g are operational in 20-bit mode
-            g, a = 2000.0, 16
-        return r.accel_scale_ms2(a, hires), r.gyro_scale_rads(g, hires)
+            g_fs, a_fs = 2000.0, 16.0
+        counts = 2.0 ** (20 if hires else 16)
+        return 2 * a_fs * G / counts, 2 * g_fs * np.pi / 180 / counts
 
     # --- sampling ---------------------------------------------------------------------------
     def _emit(
@@ -108,8 +118,9 @@ class Icm42688pSim(SampledChip):
         hires = self.hires
         a_lsb, g_lsb = self._lsb(hires)
         bits = 20 if hires else 16
-        acc = quantise(fm, a_lsb, bits)
-        gyr = quantise(wm, g_lsb, bits)
+        # the most negative code is the invalid marker: a saturated reading stops one above it
+        acc = np.maximum(quantise(fm, a_lsb, bits), 1 - 2 ** (bits - 1))
+        gyr = np.maximum(quantise(wm, g_lsb, bits), 1 - 2 ** (bits - 1))
         if hires:
             acc &= ~0x3  # 18-bit effective accel: the low two bits read 0
         # sensors still starting up deliver the invalid marker
@@ -119,10 +130,10 @@ class Icm42688pSim(SampledChip):
         shift = 4 if hires else 0
         self.latest[:3], self.latest[3:] = acc[-1] >> shift, gyr[-1] >> shift
         self.latest_temp = int(np.rint((temp[-1] - 25.0) * 132.48))
-        self.int_status |= 0x08  # DATA_RDY
-        mode = self.regs[r.FIFO_CONFIG] >> 6
-        en = self.regs[r.FIFO_CONFIG1] & (r.FIFO_ACCEL_EN | r.FIFO_GYRO_EN)
-        if mode and en == (r.FIFO_ACCEL_EN | r.FIFO_GYRO_EN):
+        self.int_status |= R.IntStatus.DATA_RDY_INT
+        mode = self.regs[B0.FIFO_CONFIG] >> 6
+        en = self.regs[B0.FIFO_CONFIG1] & (R.FifoConfig1.ACCEL_EN | R.FifoConfig1.GYRO_EN)
+        if mode and en == (R.FifoConfig1.ACCEL_EN | R.FifoConfig1.GYRO_EN):
             self._push(self._packets(t_ns, acc, gyr, temp, hires), mode)
 
     def _ticks(self, t_ns: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
@@ -140,10 +151,10 @@ class Icm42688pSim(SampledChip):
         hires: bool,
     ) -> npt.NDArray[np.uint8]:
         n = t_ns.shape[0]
-        size = r.PACKET_HIRES if hires else r.PACKET
+        size = R.PACKET4_BYTES if hires else R.PACKET3_BYTES
         out = np.zeros((n, size), dtype=np.uint8)
-        hdr = r.HDR_ACCEL | r.HDR_GYRO | 0x08  # TMST_FSYNC = 0b10: ODR timestamp
-        out[:, 0] = hdr | (r.HDR_20 if hires else 0)
+        hdr = R.Header.ACCEL | R.Header.GYRO | R.HEADER_TMST_FSYNC.bits(R.TMST_FSYNC_ODR)
+        out[:, 0] = hdr | (R.Header.HIRES_20 if hires else 0)
         hi_a, hi_g = (acc >> 4, gyr >> 4) if hires else (acc, gyr)
         be = np.concatenate([hi_a, hi_g], axis=1).astype(">i2").view(np.uint8).reshape(n, 12)
         out[:, 1:13] = be
@@ -156,7 +167,7 @@ class Icm42688pSim(SampledChip):
             out[:, 17:20] = ((acc & 0xF) << 4 | (gyr & 0xF)).astype(np.uint8)
         else:
             out[:, 13] = (
-                np.clip(np.rint((temp - 25.0) * 2.07), -128, 127).astype(np.int8).view(np.uint8)
+                np.clip(np.rint((temp - 25.0) * 2.07), -127, 127).astype(np.int8).view(np.uint8)
             )
             out[:, 14] = ticks >> 8
             out[:, 15] = ticks & 0xFF
@@ -164,64 +175,64 @@ class Icm42688pSim(SampledChip):
 
     def _push(self, packets: npt.NDArray[np.uint8], mode: int) -> None:
         size = packets.shape[1]
-        room = (r.FIFO_SIZE - len(self.fifo)) // size
+        room = (R.FIFO_SIZE - len(self.fifo)) // size
         if mode == 1:  # stream: the oldest whole packets make room
             self.fifo += packets.tobytes()
-            excess = len(self.fifo) - r.FIFO_SIZE
+            excess = len(self.fifo) - R.FIFO_SIZE
             if excess > 0:
                 drop = -(-excess // size) * size
                 del self.fifo[:drop]
                 self.packets_dropped += drop // size
-                self.int_status |= r.INT_FIFO_FULL
+                self.int_status |= R.IntStatus.FIFO_FULL_INT
             return
         keep = packets[:room]  # stop-on-full: what does not fit is dropped
         self.fifo += keep.tobytes()
         if len(packets) > room:
             self.packets_dropped += len(packets) - room
-            self.int_status |= r.INT_FIFO_FULL
+            self.int_status |= R.IntStatus.FIFO_FULL_INT
 
     def _room_for_due(self) -> bool:
         period = 1e9 / self.rate_hz
         due = (self.clock.now_ns() - self.grid_origin_ns) / period - self.next_k + 2
-        size = r.PACKET_HIRES if self.hires else r.PACKET
-        return r.FIFO_SIZE - len(self.fifo) >= due * size
+        size = R.PACKET4_BYTES if self.hires else R.PACKET3_BYTES
+        return R.FIFO_SIZE - len(self.fifo) >= due * size
 
     # --- bus side ---------------------------------------------------------------------------
     def read(self, register: int, length: int) -> bytes:
         if self.clock.now_ns() < self.busy_until_ns:
             return bytes(length)
-        if register != r.FIFO_DATA or not self._room_for_due():
+        if register != B0.FIFO_DATA or not self._room_for_due():
             # Samples due since the count read cannot be among the bytes a FIFO burst returns
             # (it reads at most what was counted), so while the FIFO has room for them their
             # generation can wait for the next access: same bytes, half the simulator's cost.
             self.advance()
-        if register == r.REG_BANK_SEL:
+        if register == B0.REG_BANK_SEL:
             return bytes([self.bank]) + bytes(length - 1)
         if self.bank != 0:
             return bytes(self.banks[self.bank][register : register + length]).ljust(length, b"\0")
-        if register == r.FIFO_DATA:
+        if register == B0.FIFO_DATA:
             out = bytes(self.fifo[:length])
             del self.fifo[:length]
             return out + b"\x80" * (length - len(out))
         image = bytearray(self.regs)
-        image[r.INT_STATUS] = self.int_status
+        image[B0.INT_STATUS] = self.int_status
         count = 0 if self.count_zero_once else len(self.fifo)
-        if self.regs[r.INTF_CONFIG0] & 0x40:  # FIFO_COUNT_REC: in packets
-            count //= r.PACKET_HIRES if self.hires else r.PACKET
-        big = bool(self.regs[r.INTF_CONFIG0] & 0x20)
-        image[r.FIFO_COUNTH : r.FIFO_COUNTH + 2] = count.to_bytes(2, "big" if big else "little")
+        if self.regs[B0.INTF_CONFIG0] & 0x40:  # FIFO_COUNT_REC: in packets
+            count //= R.PACKET4_BYTES if self.hires else R.PACKET3_BYTES
+        big = bool(self.regs[B0.INTF_CONFIG0] & 0x20)
+        image[B0.FIFO_COUNTH : B0.FIFO_COUNTH + 2] = count.to_bytes(2, "big" if big else "little")
         data = np.concatenate([[self.latest_temp], self.latest]).astype(">i2").tobytes()
-        image[r.TEMP_DATA1 : r.TEMP_DATA1 + 14] = data
+        image[B0.TEMP_DATA1 : B0.TEMP_DATA1 + 14] = data
         end = min(register + length, len(image))
-        if register <= r.INT_STATUS < end:
+        if register <= B0.INT_STATUS < end:
             self.int_status = 0  # clears on read
-        if register <= r.FIFO_COUNTH < end:
+        if register <= B0.FIFO_COUNTH < end:
             self.count_zero_once = False
         return bytes(image[register:end]) + bytes(register + length - end)
 
     def _write_one(self, reg: int, value: int) -> None:
         now = self.clock.now_ns()
-        if reg == r.REG_BANK_SEL:
+        if reg == B0.REG_BANK_SEL:
             self.bank = value & 0x07 if value & 0x07 <= 4 else self.bank
             return
         if self.bank != 0:
@@ -229,23 +240,23 @@ class Icm42688pSim(SampledChip):
             return
         if reg in _READ_ONLY0:
             return
-        if reg == r.DEVICE_CONFIG and value & r.SOFT_RESET:
+        if reg == B0.DEVICE_CONFIG and value & R.DeviceConfig.SOFT_RESET_CONFIG:
             self._power_on_reset()
             self.busy_until_ns = now + RESET_BUSY_NS
-            self.int_status = r.INT_RESET_DONE
+            self.int_status = R.IntStatus.RESET_DONE_INT
             return
-        if reg == r.SIGNAL_PATH_RESET:
-            if value & r.FIFO_FLUSH:
+        if reg == B0.SIGNAL_PATH_RESET:
+            if value & R.SignalPathReset.FIFO_FLUSH:
                 self.fifo.clear()
                 self.count_zero_once = True
             return  # self-clearing bits
         old = self.regs[reg]
         self.regs[reg] = value
-        if reg == r.PWR_MGMT0:
-            on = value & 0x0F == r.PWR_LOW_NOISE
+        if reg == B0.PWR_MGMT0:
+            on = R.GYRO_MODE.get(value) == R.ACCEL_MODE.get(value) == R.MODE_LOW_NOISE
             if on and not self.sampling:
                 self.on_since_ns = now
                 self._anchor(now)
             self.sampling = on
-        elif reg in (r.GYRO_CONFIG0, r.ACCEL_CONFIG0) and (old ^ value) & 0x0F:
+        elif reg in (B0.GYRO_CONFIG0, B0.ACCEL_CONFIG0) and (old ^ value) & 0x0F:
             self._anchor(now)  # a new ODR restarts the sample grid

@@ -17,20 +17,23 @@ value); a partially read FIFO frame stays in the FIFO; the temperature register 
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 import numpy.typing as npt
 
-from imud.chips import bmi088_fifo as f
-from imud.chips.bmi088 import ACCEL_ODRS, GYRO_MODES
+from imud.chips.api import SimDie, Truth
+from imud.chips.bmi088 import registers as R
+from imud.chips.bmi088.registers import AccelRegister as A
+from imud.chips.bmi088.registers import GyroRegister as G
 from imud.clock import Clock
 from imud.sim.chip import SampledChip
 from imud.sim.physics import ChipFigures, ErrorModel, quantise
 from imud.sim.settings import SimSettings
 
-# Noise densities and gyro bias stability from seed-facts.md; the other spreads are typical
-# turn-on figures of this chip class, moderated
+GRAVITY = 9.80665
+# Noise densities and gyro bias stability from the datasheet (docs/chips/bmi088.md); the other
+# spreads are typical turn-on figures of this chip class, moderated
 FIGURES = ChipFigures(
     accel_noise_ug_rthz=175.0,
     gyro_noise_dps_rthz=0.014,
@@ -48,31 +51,32 @@ ACC_RESET_BUSY_NS = 1_000_000
 GYR_RESET_BUSY_NS = 30_000_000
 POWER_SETTLE_NS = 5_000_000
 TEMP_UPDATE_NS = 1_280_000_000
-ACC_FRAMES_MAX = f.ACC_FIFO_SIZE // 7  # 146 frames; with a skip frame, 1024 bytes
-ACC_ODR_BY_CODE = {code: hz for hz, code in ACCEL_ODRS.items()}
-GYRO_FIFO_BYTES = f.GYR_FIFO_FRAMES * f.GYR_FRAME
+ACC_FRAMES_MAX = R.ACC_FIFO_BYTES // R.ACC_FRAME_BYTES  # 146 frames; with a skip frame, 1024 bytes
+ACC_ODR_BY_CODE = {code: hz for hz, code in R.ACCEL_ODR_CODES.items()}
+GYRO_FIFO_BYTES = R.GYRO_FIFO_FRAMES * R.GYRO_FRAME_BYTES
 
 _ACC_DEFAULTS = {
-    f.ACC_CHIP_ID: f.ACC_CHIP_ID_VALUE, f.ACC_CONF: 0xA8, f.ACC_RANGE: 0x01,
-    f.ACC_FIFO_CONFIG_0: 0x02, f.ACC_FIFO_CONFIG_1: 0x10, f.ACC_PWR_CONF: 0x03,
-    f.ACC_PWR_CTRL: 0x00, 0x45: 0x80, 0x46: 0x88, 0x47: 0x02,
+    A.ACC_CHIP_ID: R.ACC_CHIP_ID_VALUE, A.ACC_CONF: 0xA8, A.ACC_RANGE: 0x01,
+    A.FIFO_CONFIG_0: 0x02, A.FIFO_CONFIG_1: 0x10, A.ACC_PWR_CONF: 0x03,
+    A.ACC_PWR_CTRL: 0x00, A.FIFO_DOWNS: 0x80, A.FIFO_WTM_0: 0x88, A.FIFO_WTM_1: 0x02,
 }  # fmt: skip
-_ACC_WRITABLE = {f.ACC_CONF, f.ACC_RANGE, 0x45, 0x46, 0x47, f.ACC_FIFO_CONFIG_0,
-                 f.ACC_FIFO_CONFIG_1, 0x53, 0x54, 0x58, f.ACC_PWR_CONF, f.ACC_PWR_CTRL}  # fmt: skip
-_GYR_DEFAULTS = {f.GYR_CHIP_ID: f.GYR_CHIP_ID_VALUE, f.GYR_BANDWIDTH: 0x80}
-_GYR_WRITABLE = {f.GYR_RANGE, f.GYR_BANDWIDTH, f.GYR_LPM1, f.GYR_INT_CTRL, 0x16, 0x18, 0x1E,
-                 f.GYR_FIFO_CONFIG_0, f.GYR_FIFO_CONFIG_1}  # fmt: skip
+_ACC_WRITABLE = {A.ACC_CONF, A.ACC_RANGE, A.FIFO_DOWNS, A.FIFO_WTM_0, A.FIFO_WTM_1,
+                 A.FIFO_CONFIG_0, A.FIFO_CONFIG_1, A.INT1_IO_CONF, A.INT2_IO_CONF,
+                 A.INT1_INT2_MAP_DATA, A.ACC_PWR_CONF, A.ACC_PWR_CTRL}  # fmt: skip
+_GYR_DEFAULTS = {G.GYRO_CHIP_ID: R.GYRO_CHIP_ID_VALUE, G.GYRO_BANDWIDTH: 0x80}
+_GYR_WRITABLE = {G.GYRO_RANGE, G.GYRO_BANDWIDTH, G.GYRO_LPM1, G.GYRO_INT_CTRL,
+                 G.INT3_INT4_IO_CONF, G.INT3_INT4_IO_MAP, G.FIFO_WM_ENABLE,
+                 G.FIFO_CONFIG_0, G.FIFO_CONFIG_1}  # fmt: skip
 
 
 def temperature_bytes(temp_c: float) -> tuple[int, int]:
     """TEMP_MSB, TEMP_LSB for a temperature: 11-bit two's complement, 0.125 C/LSB, 0 at 23 C."""
-    s11 = max(-1024, min(1023, round((temp_c - 23.0) / 0.125)))
+    s11 = max(-1023, min(1023, round((temp_c - 23.0) / 0.125)))  # -1024 means invalid
     u11 = s11 & 0x7FF
     return u11 >> 3, (u11 & 0x7) << 5
 
 
 class Bmi088AccelSim(SampledChip):
-    spi_dummy_bytes = 1
 
     def __init__(self, settings: SimSettings, clock: Clock) -> None:
         super().__init__(settings, clock, FIGURES)
@@ -96,7 +100,7 @@ class Bmi088AccelSim(SampledChip):
         self.temp_next_ns = self.clock.now_ns() + TEMP_UPDATE_NS
         self._anchor(self.clock.now_ns())
 
-    def spi_selected(self) -> bool:
+    def spi_select(self) -> bool:
         """A chip-select edge: the first one after power-on or reset only switches to SPI."""
         if self.spi_mode:
             return True
@@ -105,7 +109,7 @@ class Bmi088AccelSim(SampledChip):
 
     @property
     def rate_hz(self) -> float:
-        return ACC_ODR_BY_CODE.get(self.regs[f.ACC_CONF] & 0x0F, 100.0) * (1 + self.clock_error)
+        return ACC_ODR_BY_CODE.get(self.regs[A.ACC_CONF] & 0x0F, 100.0) * (1 + self.clock_error)
 
     def _emit(
         self,
@@ -114,7 +118,9 @@ class Bmi088AccelSim(SampledChip):
         wm: npt.NDArray[np.float64],
         temp: npt.NDArray[np.float64],
     ) -> None:
-        lsb = f.accel_scale_ms2(f.ACCEL_RANGES_G[self.regs[f.ACC_RANGE] & 3])
+        # full scale doubles from 3 g with each ACC_RANGE step; +-full scale spans 2^16 counts
+        full_scale_g = 1.5 * 2 ** ((self.regs[A.ACC_RANGE] & 3) + 1)
+        lsb = 2 * full_scale_g * GRAVITY / 65536
         acc = quantise(fm, lsb)
         self.latest = acc[-1]
         self.drdy = True
@@ -123,14 +129,14 @@ class Bmi088AccelSim(SampledChip):
             self.temp_next_ns += TEMP_UPDATE_NS * max(
                 1, math.ceil((int(t_ns[-1]) - self.temp_next_ns) / TEMP_UPDATE_NS)
             )
-        if not self.regs[f.ACC_FIFO_CONFIG_1] & 0x40:
+        if not self.regs[A.FIFO_CONFIG_1] & R.AccFifoConfig1.ACC_EN:
             return
         n = acc.shape[0]
         frames = np.empty((n, 7), dtype=np.uint8)
-        frames[:, 0] = f.HDR_ACCEL
+        frames[:, 0] = R.AccFifoHeader.ACCEL
         frames[:, 1:] = acc.astype("<i2").view(np.uint8).reshape(n, 6)
         room = ACC_FRAMES_MAX - len(self.fifo) // 7
-        if self.regs[f.ACC_FIFO_CONFIG_0] & 0x01:  # FIFO mode: stop when full
+        if self.regs[A.FIFO_CONFIG_0] & R.AccFifoConfig0.FIFO_MODE:  # stop when full
             self.fifo += frames[:room].tobytes()
             self.frames_dropped += max(0, n - room)
             return
@@ -143,12 +149,12 @@ class Bmi088AccelSim(SampledChip):
 
     def _sensortime(self) -> int:
         chip_ns = (self.clock.now_ns() - self.t_origin_ns) * (1 + self.clock_error)
-        return int(chip_ns / (f.SENSORTIME_S_PER_LSB * 1e9)) & 0xFFFFFF
+        return int(chip_ns / (R.SENSORTIME_S_PER_LSB * 1e9)) & 0xFFFFFF
 
     def _fifo_read(self, length: int) -> bytes:
         out = bytearray()
         if self.skipped and length >= 2:
-            out += bytes([f.HDR_SKIP, min(self.skipped, 0xFF)])
+            out += bytes([R.AccFifoHeader.SKIP, min(self.skipped, 0xFF)])
             self.skipped = 0
         whole = min(len(self.fifo), (length - len(out)) // 7 * 7)
         out += self.fifo[:whole]
@@ -158,60 +164,60 @@ class Bmi088AccelSim(SampledChip):
             out += self.fifo[:rest]
         elif rest >= 4:
             st = self._sensortime()
-            out += bytes([f.HDR_SENSORTIME, st & 0xFF, st >> 8 & 0xFF, st >> 16])
-        return bytes(out.ljust(length, bytes([f.HDR_OVER_READ])))
+            out += bytes([R.AccFifoHeader.SENSORTIME, st & 0xFF, st >> 8 & 0xFF, st >> 16])
+        return bytes(out.ljust(length, bytes([R.AccFifoHeader.OVER_READ])))
 
     def read(self, register: int, length: int) -> bytes:
         if self.clock.now_ns() < self.busy_until_ns:
             return bytes(length)
         self.advance()
-        if register == f.ACC_FIFO_DATA:
+        if register == A.FIFO_DATA:
             return self._fifo_read(length)
         image = bytearray(self.regs)
-        image[f.ACC_STATUS] = 0x80 if self.drdy else 0
-        image[f.ACC_DATA : f.ACC_DATA + 6] = self.latest.astype("<i2").tobytes()
+        image[A.ACC_STATUS] = R.AccStatus.ACC_DRDY if self.drdy else 0
+        image[A.ACC_X_LSB : A.ACC_X_LSB + 6] = self.latest.astype("<i2").tobytes()
         st = self._sensortime()
-        image[f.SENSORTIME_0 : f.SENSORTIME_0 + 3] = st.to_bytes(3, "little")
-        image[f.TEMP_MSB], image[f.TEMP_MSB + 1] = self.temp_reg
+        image[A.SENSORTIME_0 : A.SENSORTIME_0 + 3] = st.to_bytes(3, "little")
+        image[A.TEMP_MSB], image[A.TEMP_MSB + 1] = self.temp_reg
         size = len(self.fifo) + (2 if self.skipped else 0)
-        image[f.FIFO_LENGTH_0 : f.FIFO_LENGTH_0 + 2] = size.to_bytes(2, "little")
+        image[A.FIFO_LENGTH_0 : A.FIFO_LENGTH_0 + 2] = size.to_bytes(2, "little")
         end = min(register + length, len(image))
-        if register <= f.ACC_STATUS < end:
+        if register <= A.ACC_STATUS < end:
             self.drdy = False
         return bytes(image[register:end]) + bytes(register + length - end)
 
     def _write_one(self, reg: int, value: int) -> None:
         now = self.clock.now_ns()
-        if reg == f.ACC_SOFTRESET:
-            if value == f.SOFTRESET_CMD:
+        if reg == A.ACC_SOFTRESET:
+            if value == R.SOFTRESET_CMD:
                 self._power_on_reset()
                 self.busy_until_ns = now + ACC_RESET_BUSY_NS
-            elif value == f.ACC_FIFO_FLUSH_CMD:
+            elif value == R.ACC_FIFO_FLUSH_CMD:
                 self.fifo.clear()
                 self.skipped = 0
             return
         if reg not in _ACC_WRITABLE or now < self.settle_until_ns:
             return
-        if reg == f.ACC_CONF and (value & 0x0F) not in ACC_ODR_BY_CODE:
+        if reg == A.ACC_CONF and (value & 0x0F) not in ACC_ODR_BY_CODE:
             return  # an invalid ODR code: the chip flags an error and keeps its setting
-        if reg == f.ACC_PWR_CONF and value not in (0x00, 0x03):
+        if reg == A.ACC_PWR_CONF and value not in (0x00, 0x03):
             return
-        if reg == f.ACC_PWR_CTRL and value not in (0x00, 0x04):
+        if reg == A.ACC_PWR_CTRL and value not in (0x00, 0x04):
             return
         old = self.regs[reg]
-        self.regs[reg] = value | (0x02 if reg == f.ACC_FIFO_CONFIG_0 else 0)
-        if reg in (f.ACC_PWR_CONF, f.ACC_PWR_CTRL) and old != value:
+        must_be_one = R.AccFifoConfig0.MUST_BE_ONE if reg == A.FIFO_CONFIG_0 else 0
+        self.regs[reg] = value | must_be_one
+        if reg in (A.ACC_PWR_CONF, A.ACC_PWR_CTRL) and old != value:
             self.settle_until_ns = now + POWER_SETTLE_NS
-            on = self.regs[f.ACC_PWR_CTRL] == 0x04 and self.regs[f.ACC_PWR_CONF] == 0x00
+            on = self.regs[A.ACC_PWR_CTRL] == 0x04 and self.regs[A.ACC_PWR_CONF] == 0x00
             if on and not self.sampling:
                 self._anchor(now)
             self.sampling = on
-        elif reg == f.ACC_CONF and (old ^ value) & 0x0F:
+        elif reg == A.ACC_CONF and (old ^ value) & 0x0F:
             self._anchor(now)
 
 
 class Bmi088GyroSim(SampledChip):
-    spi_dummy_bytes = 0
 
     def __init__(self, settings: SimSettings, clock: Clock, t_origin_ns: int) -> None:
         super().__init__(settings, clock, FIGURES)
@@ -235,7 +241,7 @@ class Bmi088GyroSim(SampledChip):
 
     @property
     def rate_hz(self) -> float:
-        odr, _ = GYRO_MODES[self.regs[f.GYR_BANDWIDTH] & 0x07]
+        odr, _ = R.GYRO_BANDWIDTH_CODES[self.regs[G.GYRO_BANDWIDTH] & 0x07]
         return odr * (1 + self.clock_error)
 
     def _emit(
@@ -245,16 +251,17 @@ class Bmi088GyroSim(SampledChip):
         wm: npt.NDArray[np.float64],
         temp: npt.NDArray[np.float64],
     ) -> None:
-        gyr = quantise(wm, f.gyro_scale_rads(f.GYRO_RANGES_DPS[self.regs[f.GYR_RANGE]]))
+        full_scale_dps = 2000 / 2 ** self.regs[G.GYRO_RANGE]  # halves with each code from 0
+        gyr = quantise(wm, 2 * full_scale_dps * math.pi / 180 / 65536)
         self.latest = gyr[-1]
-        mode = self.regs[f.GYR_FIFO_CONFIG_1] >> 6
+        mode = self.regs[G.FIFO_CONFIG_1] >> 6
         if mode == 0:
             return
         frames = gyr.astype("<i2").tobytes()
         room = GYRO_FIFO_BYTES - len(self.fifo)
         if len(frames) > room:
             self.overrun = True
-            self.frames_dropped += (len(frames) - room) // f.GYR_FRAME
+            self.frames_dropped += (len(frames) - room) // R.GYRO_FRAME_BYTES
         if mode == 1:  # FIFO mode: stop when full
             self.fifo += frames[:room]
         else:  # stream: the oldest frames make room
@@ -265,63 +272,60 @@ class Bmi088GyroSim(SampledChip):
         if self.clock.now_ns() < self.busy_until_ns:
             return bytes(length)
         self.advance()
-        if register == f.GYR_FIFO_DATA:
-            whole = min(len(self.fifo), length // f.GYR_FRAME * f.GYR_FRAME)
+        if register == G.FIFO_DATA:
+            whole = min(len(self.fifo), length // R.GYRO_FRAME_BYTES * R.GYRO_FRAME_BYTES)
             out = bytes(self.fifo[:whole])
             del self.fifo[:whole]
             return out.ljust(length, b"\0")
         image = bytearray(self.regs)
-        image[f.GYR_DATA : f.GYR_DATA + 6] = self.latest.astype("<i2").tobytes()
-        image[f.GYR_FIFO_STATUS] = (0x80 if self.overrun else 0) | len(self.fifo) // f.GYR_FRAME
+        image[G.RATE_X_LSB : G.RATE_X_LSB + 6] = self.latest.astype("<i2").tobytes()
+        overrun = R.GyroFifoStatus.OVERRUN if self.overrun else 0
+        image[G.FIFO_STATUS] = overrun | len(self.fifo) // R.GYRO_FRAME_BYTES
         end = min(register + length, len(image))
         return bytes(image[register:end]) + bytes(register + length - end)
 
     def _write_one(self, reg: int, value: int) -> None:
-        if reg == f.GYR_SOFTRESET:
-            if value == f.SOFTRESET_CMD:
+        if reg == G.GYRO_SOFTRESET:
+            if value == R.SOFTRESET_CMD:
                 self._power_on_reset(GYR_RESET_BUSY_NS)
             return
         if reg not in _GYR_WRITABLE:
             return
-        if reg == f.GYR_RANGE and value > 4:
+        if reg == G.GYRO_RANGE and value > 4:
             return
-        if reg == f.GYR_LPM1 and value not in (0x00, 0x20, 0x80):
+        if reg == G.GYRO_LPM1 and value not in (0x00, 0x20, 0x80):
             return
-        if reg == f.GYR_BANDWIDTH:
+        if reg == G.GYRO_BANDWIDTH:
             value = 0x80 | (value & 0x0F)
             if value & 0x0F > 7:
                 return
             if value != self.regs[reg]:
                 self._anchor(self.clock.now_ns())
         self.regs[reg] = value
-        if reg == f.GYR_LPM1:
+        if reg == G.GYRO_LPM1:
             on = value == 0x00
             if on and not self.sampling:
                 self._anchor(self.clock.now_ns())
             self.sampling = on
-        elif reg == f.GYR_FIFO_CONFIG_0:  # writing the watermark empties the FIFO
+        elif reg == G.FIFO_CONFIG_0:  # writing the watermark empties the FIFO
             self.fifo.clear()
             self.overrun = False
-        elif reg == f.GYR_FIFO_CONFIG_1:
+        elif reg == G.FIFO_CONFIG_1:
             self.overrun = False
 
 
 class Bmi088Sim:
-    """Both dies of one BMI088. The dies are attached to the bus separately (`dies`, in the
-    order of the config's `die_buses`); ground truth is taken at the gyro's sample instants,
-    which are the published stream's."""
+    """Both dies of one BMI088, attached to the bus separately (`dies`: accel, gyro, as the
+    spec's dies). Ground truth is taken at the gyro's sample instants, the published stream's."""
 
     def __init__(self, settings: SimSettings, clock: Clock) -> None:
         self.accel = Bmi088AccelSim(settings, clock)
         self.gyro = Bmi088GyroSim(settings, clock, self.accel.t_origin_ns)
         self.accel.record_truth = False
-        self.dies: list[Any] = [self.accel, self.gyro]
 
-    def read(self, register: int, length: int) -> bytes:
-        raise TypeError("a BMI088 is two dies: attach .accel and .gyro to the bus")
+    @property
+    def dies(self) -> Sequence[SimDie]:
+        return (self.accel, self.gyro)
 
-    def write(self, register: int, data: bytes) -> None:
-        raise TypeError("a BMI088 is two dies: attach .accel and .gyro to the bus")
-
-    def drain_truth(self) -> dict[str, Any] | None:
+    def drain_truth(self) -> Truth | None:
         return self.gyro.drain_truth()

@@ -1,0 +1,96 @@
+"""A bus process: one bus worker in a process of its own (`python -m imud.buschild FD`).
+
+Measured on a 2-vCPU machine: with every bus worker in one process, a SCHED_FIFO worker still
+waited 3-6 ms for the GIL now and then, longer than a 32 kHz FIFO lasts (docs/performance.md).
+So each bus runs here, owning the bus, its drivers, pipelines and simulators, and hands encoded
+batches and status snapshots to the daemon over a socket (`imud.busmsg`). It never blocks on the
+daemon: a full socket drops the batch and counts it (`publish_dropped`). It imports neither Zenoh
+nor the event loop: the daemon (`imud.busproc`) keeps those, and restarts this process if it dies.
+
+The daemon sends the spec on stdin as JSON: the config, the clock offset, the log level, which
+bus, and for each device the sequence number and last stamp it had reached (a restart continues
+the stream's `seq`, counting the samples lost meanwhile).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import json
+import os
+import signal
+import socket
+import sys
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from imud.busmsg import HEADER, KIND_DATA, KIND_TRUTH, PUBLISH, STATUS
+from imud.busworker import BusWorker, build_workers
+from imud.clock import MonotonicClock
+from imud.config import parse_config
+from imud.logsetup import setup_logging
+
+STATUS_EVERY_S = 0.2
+SNDBUF = 4 << 20
+
+
+def _sender(sock: socket.socket, index: int, kind: int, on_drop: Callable[[], None]) -> Any:
+    head = HEADER.pack(PUBLISH, index, kind)
+
+    def send(payload: bytes) -> None:
+        try:
+            sock.send(head + payload, socket.MSG_DONTWAIT)
+        except BlockingIOError:
+            on_drop()
+        except OSError:  # the daemon is gone: stop
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    return send
+
+
+def _report(sock: socket.socket, worker: BusWorker) -> None:
+    while not worker.stop.wait(STATUS_EVERY_S):
+        body = {"heartbeat_ns": worker.heartbeat_ns,
+                "devices": [r.status() for r in worker.runners]}  # fmt: skip
+        try:
+            sock.send(STATUS + json.dumps(body).encode(), socket.MSG_DONTWAIT)
+        except BlockingIOError:
+            pass
+        except OSError:
+            worker.stop.set()
+
+
+def child_main(fd: int, spec: dict[str, Any]) -> int:
+    """Run one bus worker until SIGTERM (or the daemon's end of the socket closes)."""
+    setup_logging(spec.get("log_level", "info"))
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the daemon, which stops us
+    sock = socket.socket(fileno=fd)
+    with contextlib.suppress(OSError):
+        sock.setsockopt(socket.SOL_SOCKET, 32, SNDBUF)  # SO_SNDBUFFORCE (root): room for bursts
+    cfg = parse_config(spec["config"])
+    offset = int(spec["offset_ns"])
+
+    def publish_for(index: int, _: Any, truth: bool, on_drop: Callable[[], None]) -> Any:
+        return _sender(sock, index, KIND_TRUTH if truth else KIND_DATA, on_drop)
+
+    (worker,) = build_workers(cfg, MonotonicClock(), offset, publish_for, only_bus=spec["bus"])
+    for index, (next_seq, last_t_ns) in spec.get("resume", {}).items():
+        worker.runners[int(index)].resume(int(next_seq), int(last_t_ns) - offset)
+    signal.signal(signal.SIGTERM, lambda *_: worker.stop.set())
+    threading.Thread(target=_report, args=(sock, worker), name="status", daemon=True).start()
+    gc.collect()
+    gc.freeze()  # see Daemon.run: no long collections on the acquisition path
+    sys.setswitchinterval(0.0005)
+    worker.run()
+    return 0
+
+
+def main() -> int:
+    fd = int(sys.argv[1])
+    spec = json.loads(sys.stdin.buffer.read())
+    return child_main(fd, spec)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

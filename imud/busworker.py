@@ -1,0 +1,206 @@
+"""One bus, its devices, one blocking loop: open the bus, connect and start each device, poll
+whichever is due next.
+
+Devices on one bus are served in turn by one worker (a thread here, in its own process by
+default: `imud.buschild`), so their transfers never interleave and the event loop never waits on
+a bus. A bus that will not open, a device that will not connect or start, a driver that raises:
+each is retried with backoff (`imud.backoff`) and shown in that device's status, and none of them
+stops the loop or the bus's other devices.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from imud.backoff import Backoff
+from imud.buses.models import I2cBus, SerialBus, SimBus, SpiBus
+from imud.calibration import Calibration, CalibrationError, load_calibration
+from imud.chips.api import DeviceBase, Driver, SimChip
+from imud.clock import Clock
+from imud.config import ImudConfig
+from imud.device import RETRY_MAX_NS, RETRY_MIN_NS, DeviceRunner, Publish
+from imud.rt import go_realtime
+from imud.status import DeviceState
+
+log = logging.getLogger("imud.bus")
+
+Connect = Callable[[Any], tuple[Driver, SimChip | None]]
+MAX_WAIT_NS = 1_000_000_000  # wake at least this often, so the heartbeat stays fresh
+SHORT_FIFO_NS = 20_000_000  # a FIFO that lasts less than this needs real-time scheduling
+
+
+@dataclass
+class BusWorker:
+    """Owns one bus: opens it (and reopens it with backoff while it will not open), then runs
+    its devices' start/poll steps in turn, sleeping until the next one is due."""
+
+    key: str
+    runners: list[DeviceRunner]
+    connectors: list[Connect]  # per runner: open bus -> (driver, simulator or None)
+    opener: Callable[[], Any]
+    clock: Clock
+    realtime_priority: int | None = None
+    stop: threading.Event = field(default_factory=threading.Event)
+    heartbeat_ns: int = 0
+    bus: Any = None
+    realtime: bool = False
+    reopen: Backoff = field(default_factory=lambda: Backoff(RETRY_MIN_NS, RETRY_MAX_NS))
+
+    def _bus_failed(self, e: Exception, now: int) -> None:
+        wait = self.reopen.failed(now)
+        for r in self.runners:
+            msg = str(e) if isinstance(e, OSError) else r.unexpected(f"open {self.key}", e)
+            r.bus_down(msg, wait)
+
+    def _warn_short_fifo(self, r: DeviceRunner, driver: Driver) -> None:
+        span_ns = driver.fifo_capacity * driver.nominal_period_ns
+        if span_ns < SHORT_FIFO_NS and not self.realtime:
+            log.warning(
+                "%s: its FIFO holds %.1f ms of samples (%d at %g Hz): an ordinary scheduler delay "
+                "can overflow it; set [daemon] realtime_priority (e.g. 20) and grant it",
+                r.cfg.name,
+                span_ns / 1e6,
+                driver.fifo_capacity,
+                r.cfg.odr_hz,
+            )
+
+    def ensure_bus(self, now: int) -> bool:
+        """Open the bus, then connect each device not yet connected (an SPI device opens its
+        own chip select). Failures retry with backoff. True when some device can be served."""
+        pending = [i for i, r in enumerate(self.runners) if r.driver is None]
+        if pending and self.reopen.ready(now):
+            if self.bus is None:
+                try:
+                    self.bus = self.opener()
+                except Exception as e:
+                    self._bus_failed(e, now)
+                    return False
+            failed = False
+            for i in pending:
+                r = self.runners[i]
+                try:
+                    driver, sim = self.connectors[i](self.bus)
+                except Exception as e:
+                    msg = str(e) if isinstance(e, OSError) else r.unexpected("connect", e)
+                    r.bus_down(msg, self.reopen.wait_ns)
+                    failed = True
+                    continue
+                r.attach(driver, sim)
+                self._warn_short_fifo(r, driver)
+            if failed:
+                self.reopen.failed(now)
+            else:
+                self.reopen.reset()
+        return any(r.driver is not None for r in self.runners)
+
+    def run_once(self) -> int:
+        """One scheduling decision: run the step that is due, or say how long to wait (ns)."""
+        now = self.clock.now_ns()
+        self.heartbeat_ns = now
+        if not self.ensure_bus(now):
+            return max(1, min(self.reopen.due_ns - now, MAX_WAIT_NS))
+        due = min((r for r in self.runners if r.driver is not None), key=lambda r: r.next_due_ns)
+        wake = due.next_due_ns
+        if wake > now:
+            if self.reopen.pending:  # devices still to connect: wake for their retry too
+                wake = min(wake, self.reopen.due_ns)
+            return max(1, min(wake - now, MAX_WAIT_NS))
+        if due.state == DeviceState.RUNNING:
+            due.note_lateness(now - due.next_due_ns, now)
+        try:
+            due.step()
+        except Exception as e:  # step() catches everything; this only guards against its bugs
+            due.unexpected("step", e)
+            due.state = DeviceState.ERROR
+            due.next_due_ns = self.clock.now_ns() + RETRY_MIN_NS
+        return 0
+
+    def run(self) -> None:
+        """Blocking loop until `stop` is set; then the devices are put to sleep."""
+        thread = threading.current_thread()
+        name, thread.name = thread.name, f"bus {self.key}"
+        if self.realtime_priority:
+            self.realtime = go_realtime(self.realtime_priority, f"bus {self.key} worker")
+        try:
+            while not self.stop.is_set():
+                wait = self.run_once()
+                if wait > 0:
+                    self.stop.wait(wait / 1e9)
+            for r in self.runners:
+                r.stop()
+        finally:
+            thread.name = name
+
+
+class _ChipSelects:
+    """An SPI bus as a whole: nothing to open; each device opens its own chip select."""
+
+
+def opener(d: DeviceBase) -> Callable[[], Any]:
+    """What opens the bus this device is on (shared by every device on it)."""
+    from imud.buses.i2c import open_smbus
+    from imud.sim.i2c import SimI2CBus
+
+    bus = d.bus
+    if isinstance(bus, SimBus) and bus.transport == "i2c":
+        return lambda: SimI2CBus(seed=d.sim.seed if d.sim else 0)
+    if isinstance(bus, I2cBus):
+        return lambda: open_smbus(bus)
+    if isinstance(bus, SpiBus | SimBus):
+        return _ChipSelects
+    assert isinstance(bus, SerialBus)
+    raise ValueError("serial buses arrive with the chips that use them")  # the config forbids
+
+
+def connector(d: DeviceBase, clock: Clock) -> Connect:
+    """Device on an open bus -> (driver, simulator or None)."""
+    from imud.buses.connect import connect
+
+    return lambda shared: connect(d, shared, clock)
+
+
+PublishFor = Callable[[int, DeviceBase, bool, Callable[[], None]], Publish]
+
+
+def _calibration(d: DeviceBase) -> Calibration | None:
+    if d.calibration is None:
+        return None
+    try:
+        return load_calibration(d.calibration)
+    except CalibrationError as e:  # changed since the config was checked
+        log.error("%s: %s; running uncalibrated", d.name, e)
+        return None
+
+
+def build_workers(
+    cfg: ImudConfig,
+    clock: Clock,
+    offset_ns: int,
+    publish_for: PublishFor,
+    only_bus: str | None = None,
+) -> list[BusWorker]:
+    """One worker per bus, one runner per device. Buses open in their workers.
+
+    `publish_for(index on its bus, device, truth?, on_drop)` gives each runner its publish
+    callable (a queue to the Zenoh publisher thread, or the socket to the daemon process)."""
+    workers: dict[str, BusWorker] = {}
+    for d in cfg.device:
+        key = d.bus.key
+        if only_bus is not None and key != only_bus:
+            continue
+        w = workers.get(key)
+        if w is None:
+            w = workers[key] = BusWorker(key, [], [], opener(d), clock)
+            w.realtime_priority = cfg.daemon.realtime_priority
+        index = len(w.runners)
+        runner = DeviceRunner(d, None, _calibration(d), lambda _: None, offset_ns, now_ns=clock.now_ns)
+        runner.publish = publish_for(index, d, False, runner.note_publish_drop)
+        if isinstance(d.bus, SimBus) and d.sim is not None and d.sim.truth:
+            runner.publish_truth = publish_for(index, d, True, lambda: None)
+        w.runners.append(runner)
+        w.connectors.append(connector(d, clock))
+    return list(workers.values())

@@ -1,0 +1,214 @@
+"""The typed interface every chip implements, and all that generic modules may know of a chip.
+
+A chip is one folder under `imud/chips/` (register map, config model, driver, simulator) and one
+`ChipSpec` in `imud.registry`. What differs between chips is declared here, so that the daemon,
+the device runner, the pipeline, the bus processes and the config loader never name a chip nor
+probe one with `getattr`:
+
+- `DeviceBase`: the config fields every device has, `odr_hz` (the published rate) among them,
+  and `die_buses()` (where each die is wired);
+- `ChipSpec`: the config model, the bus kinds, the dies (`Die`: SPI dummy bytes), the channels the
+  published stream carries, and the driver and simulator factories;
+- `Driver`: bytes on a bus to a `RawBatch` of raw channels, with either host-time read brackets
+  (`FifoRead`: the pipeline fits the chip's sample clock to them) or stamps of its own (`Stamped`:
+  a chip of several dies on several clocks stamps each die itself);
+- `SimChip`/`SimDie`: register-level simulators behind the same bus interfaces as silicon.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
+
+import numpy as np
+import numpy.typing as npt
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
+
+from imud.buses.models import Bus
+from imud.channels import Channel
+from imud.sim.settings import SimSettings
+from imud.timestamps import Stamped
+
+if TYPE_CHECKING:
+    from imud.buses.registers import RegisterDevice
+    from imud.clock import Clock
+
+
+class DeviceBase(BaseModel):
+    """Fields every `[[device]]` has, whatever its chip."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    chip: str  # each chip's model narrows this to its Literal: the union's discriminator
+    name: str = Field(
+        pattern=r"^[A-Za-z0-9_-]{1,64}$", description="unique; used in key expressions"
+    )
+    bus: Bus
+    if TYPE_CHECKING:
+        # Every chip's model declares `odr_hz`, the published rate in samples per second, as a
+        # field of its own (the registry checks): declared here, pydantic would validate it
+        # before the chip's own fields, which its checks need.
+        odr_hz: float
+    calibration: Path | None = Field(None, description="calibration TOML, relative to the config")
+    sim: SimSettings | None = Field(None, description="simulator settings (bus kind 'sim' only)")
+
+    @field_validator("calibration")
+    @classmethod
+    def _relative_to_config(cls, v: Path | None, info: ValidationInfo) -> Path | None:
+        base = (info.context or {}).get("base_dir")
+        if v is not None and not v.is_absolute() and base is not None:
+            return Path(base) / v
+        return v
+
+    def die_buses(self) -> list[Bus]:
+        """Where each die of the chip is wired, in the order of its spec's `dies`."""
+        return [self.bus]
+
+
+# --- what a driver returns ---------------------------------------------------------------------
+@dataclass(slots=True)
+class ChipCounter:
+    """A per-sample counter on the chip's own clock (a FIFO timestamp, a data counter), modulo
+    `modulo`: it makes the samples lost in a gap countable exactly."""
+
+    values: npt.NDArray[np.int64]
+    modulo: int
+
+
+@dataclass(slots=True)
+class FifoRead:
+    """Host-time brackets of one FIFO read, for the pipeline's sample-clock fit.
+
+    `t_before_ns`/`t_after_ns` bracket the instant the FIFO count was latched: the newest sample
+    was produced no later than `t_after_ns`, the one after it no earlier than `t_before_ns`.
+    `resync`: continuity with the previous batch is broken (the FIFO was reset); `restart_ns`,
+    when known, brackets the write that re-enabled the FIFO (its first sample is the first the
+    chip latched after it). `fifo_full`: a stop-on-full FIFO filled up, so its newest sample is
+    older than the read and `restart_ns` brackets the read that made room again."""
+
+    t_before_ns: int
+    t_after_ns: int
+    resync: bool = False
+    restart_ns: tuple[int, int] | None = None
+    fifo_full: bool = False
+    counter: ChipCounter | None = None
+
+
+@dataclass(slots=True)
+class RawChannel:
+    """One channel of a batch before the pipeline: counts and what turns them into SI units."""
+
+    data: npt.NDArray[Any]  # (N, width) or (N,): counts, or SI values with scale 1.0
+    scale: float = 1.0  # SI units per count
+    full_scale: float | None = None  # |count| at which the converter saturates
+    invalid: npt.NDArray[np.bool_] | None = None  # per sample: the chip marked the value invalid
+
+
+@dataclass(slots=True)
+class RawBatch:
+    """One read of a chip: N samples of the channels it produced, and how to stamp them."""
+
+    n: int
+    channels: dict[Channel, RawChannel]
+    timing: FifoRead | Stamped
+    alarm: npt.NDArray[np.bool_] | None = None  # per sample: the chip's status raised an alarm
+
+
+@dataclass(slots=True)
+class DriverCounters:
+    fifo_overflows: int = 0
+    fifo_resets: int = 0
+    bad_transfers: int = 0
+    bad_registers: int = 0
+    resets: int = 0
+
+
+class Driver(Protocol):
+    """A chip driver: bytes on a bus to raw counts. Blocking; runs in its bus's worker."""
+
+    nominal_period_ns: float  # of the published stream
+    poll_interval_ns: int
+    fifo_capacity: int  # samples the chip buffers (1 without a FIFO): how long a stall it survives
+    counters: DriverCounters
+
+    def start(self) -> Iterator[int]:
+        """Check identity, reset, configure and start the FIFO. Raises on failure.
+
+        A generator: each value it yields is a wait in ns before it may continue (a reset delay),
+        during which the bus is free for other devices."""
+
+    def read(self) -> RawBatch:
+        """Read whatever whole samples the chip holds."""
+
+    def stop(self) -> None:
+        """Put the chip to sleep (best effort)."""
+
+    def chip_status(self) -> dict[str, Any]:
+        """Chip-specific health for `imud status` (JSON-serialisable), e.g. invalid packets."""
+
+
+# --- simulators --------------------------------------------------------------------------------
+class SimDie(Protocol):
+    """A register-level simulator of one die, attached to a simulated bus."""
+
+    def read(self, register: int, length: int) -> bytes: ...
+
+    def write(self, register: int, data: bytes) -> None: ...
+
+    def spi_select(self) -> bool:
+        """A chip-select edge. False: this transfer only woke the die's SPI interface (a Bosch
+        accel die starts in I2C mode), so it is not answered."""
+
+
+@dataclass(slots=True)
+class Truth:
+    """What a simulated chip really sensed: true sample instants and values before any error."""
+
+    index: int  # the chip's own sample index of the first sample (counts from its power-on)
+    t_ns: npt.NDArray[np.int64]
+    channels: dict[Channel, npt.NDArray[np.float64]]
+
+
+class SimChip(Protocol):
+    """All dies of one simulated chip, in the order of its spec's `dies`, and its truth."""
+
+    @property
+    def dies(self) -> Sequence[SimDie]: ...
+
+    def drain_truth(self) -> Truth | None:
+        """Truth since the last call (None: nothing new, or truth recording is off)."""
+
+
+# --- the registry entry ------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class Die:
+    """One die of a chip: its name (for messages) and the dummy bytes it clocks out before the
+    data of an SPI read (a Bosch accel die sends one)."""
+
+    name: str
+    spi_dummy_bytes: int = 0
+
+
+C = TypeVar("C", bound=DeviceBase)
+
+
+@dataclass(frozen=True)
+class ChipSpec(Generic[C]):
+    """Registry entry: everything generic code may know of a chip."""
+
+    name: str  # the config's `chip` value
+    config_model: type[C]
+    make_driver: Callable[[C, Sequence[RegisterDevice], Clock], Driver]  # one link per die
+    make_sim: Callable[[C, Clock], SimChip]
+    transports: tuple[str, ...]  # bus kinds it works over: "i2c", "spi", "serial"
+    channels: Channel  # what its published stream carries
+    dies: tuple[Die, ...] = field(default=(Die("chip"),))
+    title: str = ""  # human name, e.g. "ICM-42688-P"
+
+
+def start_blocking(driver: Driver, clock: Clock) -> None:
+    """Run a driver's start sequence to the end, sleeping on `clock` (tests, tools)."""
+    for wait_ns in driver.start():
+        clock.sleep_ns(wait_ns)

@@ -1,0 +1,289 @@
+"""BMI088 driver: both dies' FIFOs each poll, each die stamped on its own clock, paired onto the
+gyro's sample times (`imud.chips.bmi088.pairing`).
+
+The accel FIFO runs in stream mode (a skip frame then counts exactly the frames an overflow
+overwrote); the gyro FIFO stops when full and raises its overrun bit, so what imud reads is whole
+and the gap is counted from the clock fit. A gyro sample with no accel value (accel samples lost
+around it) is published with its accel channel invalid: the gyro measured it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+from imud.buses.registers import RegisterDevice
+from imud.channels import Channel
+from imud.chips.api import DriverCounters, RawBatch, RawChannel
+from imud.chips.bits import BitField
+from imud.chips.bmi088 import decode as d
+from imud.chips.bmi088 import registers as R
+from imud.chips.bmi088.config import Bmi088Config, is_spi
+from imud.chips.bmi088.pairing import DiePairer
+from imud.chips.regplan import RegisterChecker, RegisterPlan, RegisterSetting
+from imud.clock import Clock
+from imud.errors import BusError, DeviceIdentityError
+from imud.timestamps import SampleClock, Stamped
+
+A, G = R.AccelRegister, R.GyroRegister
+STARTUP_WAIT_NS = 10_000_000  # first samples after power-up are settling: flushed
+WRITE_TRIES = 4  # accel writes after power-up may need retries (ArduPilot retries up to 8)
+FULL_SCALE = 32767
+_WHOLE = BitField(0xFF)
+_OVERRUN = int(R.GyroFifoStatus.OVERRUN)
+
+
+def accel_plan(c: Bmi088Config) -> list[RegisterSetting]:
+    fs = RegisterSetting.fields
+    F1 = R.AccFifoConfig1
+    return [
+        fs(
+            A.ACC_CONF,
+            (R.ACC_CONF_BWP, R.ACCEL_BWP_CODES[c.accel_filter]),
+            (R.ACC_CONF_ODR, R.ACCEL_ODR_CODES[c.accel_odr_hz]),
+        ),
+        fs(A.ACC_RANGE, (R.ACC_RANGE_FIELD, R.ACCEL_RANGES_G.index(c.accel_range_g))),
+        RegisterSetting(  # stream mode: an overflow keeps the newest frames
+            A.FIFO_CONFIG_0,
+            set_bits=R.AccFifoConfig0.MUST_BE_ONE,
+            clear_bits=R.AccFifoConfig0.FIFO_MODE,
+        ),
+        RegisterSetting(
+            A.FIFO_CONFIG_1,
+            set_bits=F1.ACC_EN | F1.MUST_BE_ONE,
+            clear_bits=F1.INT1_INPUT_EN | F1.INT2_INPUT_EN,
+        ),
+        fs(A.ACC_PWR_CONF, (_WHOLE, R.ACC_PWR_CONF_ACTIVE)),
+        fs(A.ACC_PWR_CTRL, (_WHOLE, R.ACC_PWR_CTRL_ON)),
+    ]
+
+
+def gyro_plan(c: Bmi088Config) -> list[RegisterSetting]:
+    fs = RegisterSetting.fields
+    return [
+        fs(G.GYRO_RANGE, (R.GYRO_RANGE_FIELD, R.GYRO_RANGES_DPS.index(c.gyro_range_dps))),
+        fs(G.GYRO_BANDWIDTH, (R.GYRO_BANDWIDTH_FIELD, c.gyro_bandwidth_code())),
+        fs(G.GYRO_LPM1, (_WHOLE, R.GYRO_LPM1_NORMAL)),
+        fs(
+            G.FIFO_CONFIG_1,
+            (R.GYRO_FIFO_MODE, R.GYRO_FIFO_MODE_FIFO),
+            (R.GYRO_FIFO_DATA_SELECT, 0),
+        ),
+    ]
+
+
+class Bmi088Driver:
+    """Both dies' FIFOs each poll, stamped per die, paired onto gyro times. Blocking; owned by
+    the bus worker."""
+
+    def __init__(
+        self, cfg: Bmi088Config, acc: RegisterDevice, gyr: RegisterDevice, clock: Clock
+    ) -> None:
+        self.cfg, self.acc, self.gyr, self.clock = cfg, acc, gyr, clock
+        self.counters = DriverCounters()
+        self.spi = is_spi(cfg.bus)
+        self.nominal_period_ns = 1e9 / cfg.odr_hz
+        self.accel_period_ns = 1e9 / cfg.accel_odr_hz
+        self.fifo_capacity = R.GYRO_FIFO_FRAMES
+        acc_frames = R.ACC_FIFO_BYTES // R.ACC_FRAME_BYTES
+        # a quarter of the smaller FIFO between polls; at most 10 ms, which bounds how long the
+        # newest gyro samples wait for an accel sample after them
+        self.poll_interval_ns = int(
+            min(
+                10e6,
+                self.nominal_period_ns * R.GYRO_FIFO_FRAMES / 4,
+                self.accel_period_ns * acc_frames / 4,
+            )
+        )
+        self.accel_scale = d.accel_scale_ms2(cfg.accel_range_g)
+        self.gyro_scale = d.gyro_scale_rads(cfg.gyro_range_dps)
+        self.gyro_clock = SampleClock(self.nominal_period_ns)
+        self.accel_clock = SampleClock(self.accel_period_ns)
+        wait = 3 * self.accel_period_ns + 4 * self.poll_interval_ns  # then accel is missing
+        self.pairer = DiePairer(max_wait_ns=int(max(100e6, wait)))
+        self.accel_skipped = 0  # frames the accel FIFO reported overwritten (skip frames)
+        self.temperature = 23.0
+        self.acc_plan = RegisterPlan(acc, accel_plan(cfg), die="accel")
+        self.gyr_plan = RegisterPlan(gyr, gyro_plan(cfg), die="gyro")
+        self._checker = RegisterChecker([self.acc_plan, self.gyr_plan], clock, self.counters)
+        self._g_resync = self._a_resync = False
+        self._g_restart: tuple[int, int] | None = None
+        self._a_restart: tuple[int, int] | None = None
+
+    # --- start ------------------------------------------------------------------------------
+    def _identify(self) -> None:
+        if self.spi:  # the accel die starts in I2C mode: a first SPI access switches it
+            self.acc.read_u8(A.ACC_CHIP_ID)
+        for dev, reg, want, die in (
+            (self.acc, A.ACC_CHIP_ID, R.ACC_CHIP_ID_VALUE, "accel"),
+            (self.gyr, G.GYRO_CHIP_ID, R.GYRO_CHIP_ID_VALUE, "gyro"),
+        ):
+            got = dev.read_u8(reg)
+            if got != want:
+                got = dev.read_u8(reg)
+            if got != want:
+                raise DeviceIdentityError(
+                    f"BMI088 {die} die: CHIP_ID reads 0x{got:02x}, expected 0x{want:02x}: check "
+                    f"the wiring and {'bus' if die == 'accel' else 'gyro_bus'} (the {die} die's "
+                    "chip select or address)"
+                )
+
+    def start(self) -> Iterator[int]:
+        self._identify()
+        self.acc.write_u8(A.ACC_SOFTRESET, R.SOFTRESET_CMD)
+        self.gyr.write_u8(G.GYRO_SOFTRESET, R.SOFTRESET_CMD)
+        yield R.GYRO_RESET_WAIT_NS  # covers the accel's 1 ms too
+        self._identify()  # the reset put the accel back in I2C mode: the dummy read again
+        self.counters.resets += 1
+        self.acc.write_u8(A.ACC_PWR_CONF, R.ACC_PWR_CONF_ACTIVE)
+        yield R.ACC_POWER_WAIT_NS
+        self.acc.write_u8(A.ACC_PWR_CTRL, R.ACC_PWR_CTRL_ON)
+        yield R.ACC_POWER_WAIT_NS
+        self.acc_plan.write_all(tries=WRITE_TRIES)
+        self.gyr_plan.write_all(tries=WRITE_TRIES)
+        yield STARTUP_WAIT_NS
+        self.acc_plan.verify_all()
+        self.gyr_plan.verify_all()
+        self.temperature = self._read_temperature()
+        self._flush_accel()
+        self._flush_gyro()
+        for c in (self.accel_clock, self.gyro_clock):
+            if c.k_last >= 0:  # samples before this start: count the gap on the new grid
+                c.rebase()
+        self.pairer.reset()
+        self._checker.restart()
+
+    def _read_temperature(self) -> float:
+        msb, lsb = self.acc.read(A.TEMP_MSB, 2)
+        return d.temperature_c(msb, lsb)
+
+    def _flush_accel(self) -> None:
+        t0 = self.clock.now_ns()
+        self.acc.write_u8(A.ACC_SOFTRESET, R.ACC_FIFO_FLUSH_CMD)
+        self._a_resync, self._a_restart = True, (t0, self.clock.now_ns())
+        self.counters.fifo_resets += 1
+
+    def _flush_gyro(self) -> None:
+        t0 = self.clock.now_ns()
+        self.gyr.write_u8(G.FIFO_CONFIG_0, 0)  # writing the watermark empties the FIFO
+        self._clear_overrun()
+        self._g_resync, self._g_restart = True, (t0, self.clock.now_ns())
+        self.counters.fifo_resets += 1
+
+    def _clear_overrun(self) -> None:
+        """Writing the mode register clears the overrun flag (and keeps the frames)."""
+        s = self.gyr_plan.settings[-1]
+        self.gyr.write_u8(G.FIFO_CONFIG_1, s.apply(0))  # every bit of it is ours
+
+    # --- read -------------------------------------------------------------------------------
+    def _read_gyro(self) -> None:
+        tb = self.clock.now_ns()
+        status = self.gyr.read_u8(G.FIFO_STATUS)
+        ta = self.clock.now_ns()
+        if status == 0xFF:  # 127 frames with overrun: more than the FIFO holds; MISO floats
+            raise BusError(0, "gyro FIFO_STATUS reads 0xff: no answer on MISO")
+        n = min(R.GYRO_FIFO_FRAME_COUNT.get(status), R.GYRO_FIFO_FRAMES)
+        # only the overrun bit says samples were dropped: 100 frames without it is a FIFO that
+        # just filled, whose newest frame is the newest sample
+        overrun = bool(status & _OVERRUN)
+        resync, restart = self._g_resync, self._g_restart
+        self._g_resync, self._g_restart = False, None
+        if n == 0:
+            self.gyro_clock.update(0, tb, ta, resync, restart=restart)
+            if overrun:
+                self.counters.fifo_overflows += 1
+                self._clear_overrun()
+            return
+        r0 = self.clock.now_ns()
+        data = self.gyr.read(G.FIFO_DATA, n * R.GYRO_FRAME_BYTES)
+        r1 = self.clock.now_ns()
+        gyro = d.decode_gyro_fifo(data)
+        if overrun:
+            # stop-on-full: what we read is whole, but the newest sample is old and the ones
+            # after it were dropped until this read made room; clearing overrun keeps it going
+            self.counters.fifo_overflows += 1
+            self._clear_overrun()
+            self._g_resync, self._g_restart = True, (r0, r1)
+        st = self.gyro_clock.update(n, tb, ta, resync, restart=restart, full=overrun)
+        self.pairer.add_gyro(st.first_seq + np.arange(n, dtype=np.int64), st.t_ns, gyro)
+
+    def _read_accel(self) -> None:
+        tb = self.clock.now_ns()
+        head = self.acc.read(A.TEMP_MSB, 4)  # TEMP_MSB, TEMP_LSB, FIFO_LENGTH_0/1: one burst
+        ta = self.clock.now_ns()
+        if head == b"\xff\xff\xff\xff":
+            raise BusError(0, "accel temperature and FIFO length read all ones: no answer")
+        self.temperature = d.temperature_c(head[0], head[1])
+        empty = (head[3] << 8) & R.FIFO_LENGTH_EMPTY
+        length = 0 if empty else d.fifo_length(head[2], head[3])
+        resync, restart = self._a_resync, self._a_restart
+        self._a_resync, self._a_restart = False, None
+        if length == 0:
+            self.accel_clock.update(0, tb, ta, resync, restart=restart)
+            return
+        if length > R.ACC_FIFO_BYTES:
+            self.counters.bad_transfers += 1
+            self._flush_accel()
+            return
+        data = self.acc.read(A.FIFO_DATA, length)
+        fifo = d.decode_accel_fifo(data)
+        n = int(fifo.accel.shape[0])
+        # frame positions counting the frames skip frames say were overwritten: exact gaps
+        pos = np.arange(n, dtype=np.int64)
+        unknown = False
+        for at, count in fifo.skipped_before:
+            if count >= R.SKIP_UNKNOWN:  # "more than 255": unknown, the clock fit decides
+                unknown = True
+            else:
+                pos[at:] += count
+            self.accel_skipped += count
+            self.counters.fifo_overflows += 1
+        total = int(pos[-1]) + 1 if n else 0
+        if fifo.corrupt_at is not None:
+            self.counters.bad_transfers += 1
+        if n:
+            st = self.accel_clock.update(
+                total, tb, ta, resync or unknown, restart=restart if resync else None
+            )
+            t = st.t_ns[pos]
+            self.pairer.add_accel(st.first_seq + pos, t, fifo.accel)
+        else:
+            self.accel_clock.update(0, tb, ta, resync, restart=restart)
+        if fifo.corrupt_at is not None:
+            self._flush_accel()
+
+    def read(self) -> RawBatch:
+        self._read_gyro()  # gyro first: the accel read after it covers its newest samples
+        self._read_accel()
+        self._checker.check_next()
+        p = self.pairer.take()
+        period = self.gyro_clock.period
+        if p is None:
+            stamps = Stamped(self.pairer.next_seq or 0, 0, np.zeros(0, dtype=np.int64), period)
+            return RawBatch(0, {}, stamps)
+        accel_invalid = None if bool(p.valid.all()) else ~p.valid
+        return RawBatch(
+            p.n,
+            {
+                Channel.ACCEL: RawChannel(p.accel, self.accel_scale, FULL_SCALE, accel_invalid),
+                Channel.GYRO: RawChannel(p.gyro, self.gyro_scale, FULL_SCALE),
+                Channel.TEMPERATURE: RawChannel(
+                    np.full(p.n, self.temperature),
+                    invalid=np.ones(p.n, dtype=bool) if math.isnan(self.temperature) else None,
+                ),
+            },
+            Stamped(p.first_seq, p.lost_before, p.t_ns, period),
+        )
+
+    def stop(self) -> None:
+        with contextlib.suppress(BusError):
+            self.acc.write_u8(A.ACC_PWR_CTRL, R.ACC_PWR_CTRL_OFF)
+            self.acc.write_u8(A.ACC_PWR_CONF, R.ACC_PWR_CONF_SUSPEND)
+            self.gyr.write_u8(G.GYRO_LPM1, R.GYRO_LPM1_SUSPEND)
+
+    def chip_status(self) -> dict[str, Any]:
+        return {"accel_frames_skipped": self.accel_skipped}

@@ -1,0 +1,37 @@
+"""The BMI088's registry entry: two dies, the accel's SPI reads led by one dummy byte."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from imud.buses.registers import RegisterDevice
+from imud.channels import Channel
+from imud.chips.api import ChipSpec, Die, Driver, SimChip
+from imud.chips.bmi088.config import Bmi088Config
+from imud.clock import Clock
+
+
+def _driver(cfg: Bmi088Config, links: Sequence[RegisterDevice], clock: Clock) -> Driver:
+    from imud.chips.bmi088.driver import Bmi088Driver
+
+    acc, gyr = links
+    return Bmi088Driver(cfg, acc, gyr, clock)
+
+
+def _sim(cfg: Bmi088Config, clock: Clock) -> SimChip:
+    from imud.chips.bmi088.sim import Bmi088Sim
+    from imud.sim.settings import SimSettings
+
+    return Bmi088Sim(cfg.sim or SimSettings(), clock)
+
+
+SPEC = ChipSpec(
+    name="bmi088",
+    title="BMI088",
+    config_model=Bmi088Config,
+    make_driver=_driver,
+    make_sim=_sim,
+    transports=("spi", "i2c"),
+    channels=Channel.ACCEL | Channel.GYRO | Channel.TEMPERATURE,
+    dies=(Die("accel", spi_dummy_bytes=1), Die("gyro")),
+)

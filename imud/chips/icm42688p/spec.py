@@ -1,0 +1,36 @@
+"""The ICM-42688-P's registry entry."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from imud.buses.registers import RegisterDevice
+from imud.channels import Channel
+from imud.chips.api import ChipSpec, Driver, SimChip
+from imud.chips.icm42688p.config import Icm42688pConfig
+from imud.clock import Clock
+
+
+def _driver(cfg: Icm42688pConfig, links: Sequence[RegisterDevice], clock: Clock) -> Driver:
+    from imud.chips.icm42688p.driver import Icm42688pDriver
+
+    (dev,) = links
+    return Icm42688pDriver(cfg, dev, clock)
+
+
+def _sim(cfg: Icm42688pConfig, clock: Clock) -> SimChip:
+    from imud.chips.icm42688p.sim import Icm42688pSim
+    from imud.sim.settings import SimSettings
+
+    return Icm42688pSim(cfg.sim or SimSettings(), clock)
+
+
+SPEC = ChipSpec(
+    name="icm42688p",
+    title="ICM-42688-P",
+    config_model=Icm42688pConfig,
+    make_driver=_driver,
+    make_sim=_sim,
+    transports=("spi", "i2c"),
+    channels=Channel.ACCEL | Channel.GYRO | Channel.TEMPERATURE,
+)

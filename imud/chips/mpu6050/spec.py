@@ -1,0 +1,36 @@
+"""The MPU6050's registry entry."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from imud.buses.registers import RegisterDevice
+from imud.channels import Channel
+from imud.chips.api import ChipSpec, Driver, SimChip
+from imud.chips.mpu6050.config import Mpu6050Config
+from imud.clock import Clock
+
+
+def _driver(cfg: Mpu6050Config, links: Sequence[RegisterDevice], clock: Clock) -> Driver:
+    from imud.chips.mpu6050.driver import Mpu6050Driver
+
+    (dev,) = links
+    return Mpu6050Driver(cfg, dev, clock)
+
+
+def _sim(cfg: Mpu6050Config, clock: Clock) -> SimChip:
+    from imud.chips.mpu6050.sim import Mpu6050Sim
+    from imud.sim.settings import SimSettings
+
+    return Mpu6050Sim(cfg.sim or SimSettings(), clock)
+
+
+SPEC = ChipSpec(
+    name="mpu6050",
+    title="MPU6050",
+    config_model=Mpu6050Config,
+    make_driver=_driver,
+    make_sim=_sim,
+    transports=("i2c",),
+    channels=Channel.ACCEL | Channel.GYRO | Channel.TEMPERATURE,
+)
