@@ -174,13 +174,18 @@ class BusProcess:
     def run(self) -> None:
         while not self.stop.is_set():
             started = time.monotonic_ns()
+            why: str | None = None
+            code: int | None = None
             try:
                 sock = self._spawn()
             except OSError as e:
-                why, code = f"cannot start the bus process: {e}", None
+                why = f"cannot start the bus process: {e}"
             else:
                 try:
                     why = self._relay(sock)
+                except Exception as e:  # a malformed message: a bug; restart the child
+                    log.exception("relaying bus %s failed", self.key)
+                    why = f"relay failed: {type(e).__name__}: {e}"
                 finally:
                     sock.close()
                     code = self._end_child(kill=why is not None)

@@ -197,7 +197,9 @@ def build_workers(
             w = workers[key] = BusWorker(key, [], [], opener(d), clock)
             w.realtime_priority = cfg.daemon.realtime_priority
         index = len(w.runners)
-        runner = DeviceRunner(d, None, _calibration(d), lambda _: None, offset_ns, now_ns=clock.now_ns)
+        runner = DeviceRunner(
+            d, None, _calibration(d), lambda _: None, offset_ns, now_ns=clock.now_ns
+        )
         runner.publish = publish_for(index, d, False, runner.note_publish_drop)
         if isinstance(d.bus, SimBus) and d.sim is not None and d.sim.truth:
             runner.publish_truth = publish_for(index, d, True, lambda: None)

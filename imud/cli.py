@@ -82,9 +82,9 @@ def check_config(file: str) -> None:
 @main.command("config-schema")
 def config_schema() -> None:
     """Print the config file's JSON Schema."""
-    from imud.config import ImudConfig
+    from imud.config import config_model
 
-    click.echo(json.dumps(ImudConfig.model_json_schema(), indent=2))
+    click.echo(json.dumps(config_model().model_json_schema(), indent=2))
 
 
 def _session(endpoint: str) -> Any:

@@ -144,9 +144,7 @@ def config_model() -> type[ImudConfig]:
     if _models is None or _models[0] != registry.generation:
         models = tuple(spec.config_model for spec in registry.CHIPS.values())
         device: Any = (
-            models[0]
-            if len(models) == 1
-            else Annotated[Union[models], Field(discriminator="chip")]  # noqa: UP007
+            models[0] if len(models) == 1 else Annotated[Union[models], Field(discriminator="chip")]  # noqa: UP007
         )
         model = create_model(
             "ImudConfig", __base__=ImudConfig, device=(list[device], Field(min_length=1))

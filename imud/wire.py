@@ -58,10 +58,12 @@ class Batch:
 
     def invalid(self, channel: Channel) -> npt.NDArray[np.bool_]:
         """Per sample: the chip marked this channel's value invalid (it reads NaN)."""
-        return (self.sample_flags & np.uint32(channel)) != 0
+        out: npt.NDArray[np.bool_] = (self.sample_flags & np.uint32(channel)) != 0
+        return out
 
     def flagged(self, flag: SampleFlag) -> npt.NDArray[np.bool_]:
-        return (self.sample_flags & np.uint32(flag)) != 0
+        out: npt.NDArray[np.bool_] = (self.sample_flags & np.uint32(flag)) != 0
+        return out
 
     # the common channels by name; None when the batch does not carry them
     @property
@@ -134,7 +136,9 @@ def decode(buf: bytes) -> Batch:
     off = HEADER.size + name_len + (-name_len) % 8
     need = off + n * (8 + 4 + 4 * sum(CHANNELS[c].width for c in chans))
     if len(buf) != need:
-        raise WireError(f"batch of {n} samples with mask 0x{mask:x} needs {need} bytes, got {len(buf)}")
+        raise WireError(
+            f"batch of {n} samples with mask 0x{mask:x} needs {need} bytes, got {len(buf)}"
+        )
     try:
         device = bytes(buf[HEADER.size : HEADER.size + name_len]).decode()
     except UnicodeDecodeError as e:

@@ -76,6 +76,7 @@ def make_rig(device: dict[str, Any], sim: dict[str, Any] | None = None) -> Rig:
 def concat(batches: list[Batch]) -> dict[str, np.ndarray]:
     """Measured or truth batches joined: seq, t_ns, flags and the accel/gyro/temperature arrays
     (float64)."""
+
     def cat(ch: Channel) -> np.ndarray:
         return np.concatenate([b.channels[ch] for b in batches]).astype(np.float64)
 

@@ -60,6 +60,10 @@ class SampledChip:
         """One register write, after the busy check and with samples up to now produced."""
         raise NotImplementedError
 
+    def read(self, register: int, length: int) -> bytes:
+        """A burst read from `register` (the bus side of the chip)."""
+        raise NotImplementedError
+
     # --- shared -----------------------------------------------------------------------------
     busy_until_ns = 0  # a chip busy resetting ignores the bus until then
 

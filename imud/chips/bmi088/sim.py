@@ -77,7 +77,6 @@ def temperature_bytes(temp_c: float) -> tuple[int, int]:
 
 
 class Bmi088AccelSim(SampledChip):
-
     def __init__(self, settings: SimSettings, clock: Clock) -> None:
         super().__init__(settings, clock, FIGURES)
         self.frames_dropped = 0
@@ -218,7 +217,6 @@ class Bmi088AccelSim(SampledChip):
 
 
 class Bmi088GyroSim(SampledChip):
-
     def __init__(self, settings: SimSettings, clock: Clock, t_origin_ns: int) -> None:
         super().__init__(settings, clock, FIGURES)
         self.t_origin_ns = t_origin_ns  # one body: the same physics time as the accel die

@@ -95,9 +95,7 @@ def decode_packets(data: bytes, hires: bool) -> Packets:
         no_20 = np.zeros(hdr.shape, dtype=bool)
     accel_bad = ((hdr & _HDR_ACCEL) == 0) | (accel == marker).all(axis=1) | no_20
     gyro_bad = ((hdr & _HDR_GYRO) == 0) | (gyro == marker).all(axis=1) | no_20
-    return Packets(
-        accel, gyro, temp, rec["ts"].astype(np.int64), accel_bad, gyro_bad, temp_bad
-    )
+    return Packets(accel, gyro, temp, rec["ts"].astype(np.int64), accel_bad, gyro_bad, temp_bad)
 
 
 def _select_bank(dev: RegisterDevice, bank: int) -> None:
@@ -147,7 +145,9 @@ def register_plan(c: Icm42688pConfig) -> list[RegisterSetting]:
     g, a = c.gyro_aaf_hz, c.accel_aaf_hz
     if g == "off":
         plan.append(
-            RegisterSetting(B1.GYRO_CONFIG_STATIC2, set_bits=R.GyroConfigStatic2.GYRO_AAF_DIS, bank=1)
+            RegisterSetting(
+                B1.GYRO_CONFIG_STATIC2, set_bits=R.GyroConfigStatic2.GYRO_AAF_DIS, bank=1
+            )
         )
     else:
         d, sq, sh = R.AAF_TABLE[int(g)]
