@@ -65,6 +65,7 @@ class Daemon:
         self.workers: list[BusWorker | BusProcess] = []
         self.publisher: PublisherThread | None = None
         self.ready = False
+        self.stall_ns = STALL_NS
         self._stop_requested = threading.Event()
 
     def request_stop(self) -> None:
@@ -237,7 +238,7 @@ class Daemon:
     def _serving(self, now_ns: int) -> list[str]:
         """What keeps the daemon from serving: relay threads (process mode) or bus workers
         (thread mode, where a hung one cannot be restarted) that stopped making progress."""
-        return [w.key for w in self.workers if now_ns - w.heartbeat_ns > STALL_NS]
+        return [w.key for w in self.workers if now_ns - w.heartbeat_ns > self.stall_ns]
 
     async def _supervise(self) -> None:
         deadline = time.monotonic() + READY_TIMEOUT_S

@@ -1,0 +1,120 @@
+"""systemd's watchdog, through a fake NOTIFY_SOCKET, with the daemon in this process.
+
+WATCHDOG=1 means the daemon itself is alive and serving. In thread mode a bus worker stuck
+inside a driver call cannot be restarted, so the daemon stops petting and lets systemd restart
+it; a bus process that crashes is restarted instead and the petting goes on
+(tests/test_bus_process.py)."""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import socket
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import anyio
+import pytest
+
+import imud.busworker
+from imud.buses.connect import connect
+from imud.chips.api import DeviceBase, Driver, RawBatch, SimChip
+from imud.clock import Clock
+from imud.config import load_config
+from imud.daemon import Daemon
+from tests.helpers import free_port
+
+
+class Hanging:
+    """A real driver whose read blocks once `hang` is set: a chip that holds the bus."""
+
+    def __init__(self, inner: Driver, hang: threading.Event, release: threading.Event) -> None:
+        self.inner, self.hang, self.release = inner, hang, release
+        self.nominal_period_ns = inner.nominal_period_ns
+        self.poll_interval_ns = inner.poll_interval_ns
+        self.fifo_capacity = inner.fifo_capacity
+        self.counters = inner.counters
+
+    def start(self) -> Iterator[int]:
+        return self.inner.start()
+
+    def read(self) -> RawBatch:
+        if self.hang.is_set():
+            self.release.wait(30)
+        return self.inner.read()
+
+    def stop(self) -> None:
+        self.inner.stop()
+
+    def chip_status(self) -> dict[str, Any]:
+        return {}
+
+
+def test_a_hung_worker_stops_the_watchdog_in_thread_mode(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    notify.bind(str(tmp_path / "notify"))
+    notify.settimeout(0.05)
+    monkeypatch.setenv("NOTIFY_SOCKET", str(tmp_path / "notify"))
+    monkeypatch.setenv("WATCHDOG_USEC", "400000")  # petted every 0.2 s
+    hang, release = threading.Event(), threading.Event()
+
+    def hanging_connector(d: DeviceBase, clock: Clock) -> Any:
+        def make(shared: Any) -> tuple[Driver, SimChip | None]:
+            driver, sim = connect(d, shared, clock)
+            return Hanging(driver, hang, release), sim
+
+        return make
+
+    monkeypatch.setattr(imud.busworker, "connector", hanging_connector)
+    cfg_path = tmp_path / "c.toml"
+    cfg_path.write_text(
+        f'[daemon]\nbus_processes = false\n[zenoh]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n'
+        '[[device]]\nname = "a"\nchip = "mpu6050"\nbus = { kind = "sim" }\n'
+    )
+    daemon = Daemon(load_config(cfg_path))
+    daemon.stall_ns = 1_000_000_000
+    log: list[tuple[float, str]] = []
+
+    def listen(until: float) -> None:
+        while time.monotonic() < until:
+            with contextlib.suppress(TimeoutError):
+                log.append((time.monotonic(), notify.recv(4096).decode()))
+
+    marks: dict[str, float] = {}
+
+    def drive() -> None:
+        try:
+            listen(time.monotonic() + 2.0)  # started and petting
+            marks["hang"] = time.monotonic()
+            hang.set()
+            listen(time.monotonic() + 3.0)  # stall_ns (1 s) later the petting stops
+            release.set()
+            listen(time.monotonic() + 2.0)  # the worker moves again: petting resumes
+        finally:
+            release.set()
+            daemon.request_stop()
+
+    switch = sys.getswitchinterval()
+    t = threading.Thread(target=drive)
+    t.start()
+    try:
+        assert anyio.run(daemon.run) == 0
+    finally:
+        t.join()
+        sys.setswitchinterval(switch)
+        gc.unfreeze()
+        notify.close()
+    h = marks["hang"]
+    pets = [at for at, m in log if m == "WATCHDOG=1"]
+    assert any("READY=1" in m for _, m in log)
+    assert [p for p in pets if p < h], "petted while serving"
+    # from a second after the stall threshold until the worker was released: no pet at all
+    silent = [p for p in pets if h + 2.0 < p < h + 3.0]
+    assert not silent, silent
+    assert [p for p in pets if p > h + 3.5], "petting resumed once the worker moved again"
