@@ -143,11 +143,12 @@ class Bench:
     ) -> RunResult:
         from imud.buses.i2c import I2CDevice
         from imud.calibration import load_calibration
-        from imud.chips.mpu6050 import Mpu6050Config, Mpu6050Driver
+        from imud.chips.mpu6050.config import Mpu6050Config
+        from imud.chips.mpu6050.driver import Mpu6050Driver
+        from imud.chips.mpu6050.sim import Mpu6050Sim
         from imud.clock import VirtualClock, epoch_offset_ns
         from imud.device import DeviceRunner
         from imud.sim.i2c import SimI2CBus
-        from imud.sim.mpu6050 import Mpu6050Sim
 
         d = self.cfg.device[0].model_copy(update={"name": name})
         assert isinstance(d, Mpu6050Config) and d.sim is not None and d.calibration is not None

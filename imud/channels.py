@@ -49,11 +49,15 @@ CHANNELS: dict[Channel, ChannelInfo] = {
 }
 assert list(CHANNELS) == sorted(CHANNELS), "wire order is bit order"
 ALL_CHANNELS = Channel(sum(CHANNELS))
+# (channel, its bit as a plain int, width) in wire order: hot paths test bits on ints, since an
+# operator on an IntFlag builds a new enum member each time
+ORDER: list[tuple[Channel, int, int]] = [(c, int(c), i.width) for c, i in CHANNELS.items()]
 
 
-def channels_in(mask: Channel | int) -> list[Channel]:
+def channels_in(mask: int) -> list[Channel]:
     """The channels of a mask, in wire (bit) order."""
-    return [c for c in CHANNELS if mask & c]
+    mask = int(mask)
+    return [c for c, bit, _ in ORDER if mask & bit]
 
 
 class SampleFlag(IntFlag):

@@ -20,7 +20,7 @@ import numpy.typing as npt
 from imud.backoff import Backoff
 from imud.buses.models import describe
 from imud.calibration import Calibration
-from imud.channels import Channel
+from imud.channels import INVALID_MASK, Channel
 from imud.chips.api import DeviceBase, Driver, SimChip
 from imud.errors import BusError, DeviceIdentityError, RegisterMismatch
 from imud.pipeline import Pipeline, SampleBatch
@@ -242,16 +242,22 @@ class DeviceRunner:
         if batch.lost_before:
             self._note_loss(batch.lost_before, now)
         run_end = 0
+        whole = batch.hole is None
         for start, end in _runs(batch.hole, batch.n):
             if start > run_end:  # samples with no valid data at all are holes: lost
                 self._note_loss(start - run_end, now)
-            sf = batch.sample_flags[start:end]
+            sf = batch.sample_flags
+            if sf is not None and not whole:
+                sf = sf[start:end]
+            chans = (
+                batch.channels if whole else {c: a[start:end] for c, a in batch.channels.items()}
+            )
             self.publish(
                 encode(
                     self.cfg.name,
                     batch.first_seq + start,
-                    batch.t_ns[start:end],
-                    {c: a[start:end] for c, a in batch.channels.items()},
+                    batch.t_ns if whole else batch.t_ns[start:end],
+                    chans,
                     sf,
                     flags=batch.flags | (FLAG_RESYNC if self._unpublished_lost else 0),
                     lost_before=self._unpublished_lost,
@@ -261,11 +267,13 @@ class DeviceRunner:
             run_end = end
             self.samples += end - start
             self.batches += 1
-            if sf.any():
-                self.invalid_samples += int(np.count_nonzero(sf & 0xFFFF))
-            temp = batch.channels.get(Channel.TEMPERATURE)
-            if temp is not None and not np.isnan(temp[end - 1]):
-                self.temperature_c = float(temp[end - 1])
+            if sf is not None:
+                self.invalid_samples += int(np.count_nonzero(sf & INVALID_MASK))
+            temp = chans.get(Channel.TEMPERATURE)
+            if temp is not None:
+                t = float(temp[-1])
+                if t == t:  # not NaN
+                    self.temperature_c = t
         if batch.n and run_end < batch.n:
             self._note_loss(batch.n - run_end, now)
 

@@ -21,6 +21,11 @@ from imud.wire import FLAG_CALIBRATED, FLAG_RESYNC
 F64 = npt.NDArray[np.float64]
 U32 = npt.NDArray[np.uint32]
 _ALARM = np.uint32(SampleFlag.CHIP_ALARM)
+# plain numbers on the hot path: an operator on an IntFlag builds a new enum member each time
+_BIT = {c: np.uint32(c) for c in Channel}
+_SAT = {c: np.uint32(f) for c, f in SATURATED.items()}
+_TEMPERATURE = int(Channel.TEMPERATURE)
+_max, _min = np.maximum.reduce, np.minimum.reduce  # skip ndarray.max's Python wrapper
 
 
 def stamp(clock: SampleClock, raw: RawBatch) -> Stamped:
@@ -42,20 +47,24 @@ def stamp(clock: SampleClock, raw: RawBatch) -> Stamped:
     )
 
 
-def sample_flags(raw: RawBatch) -> U32:
+def sample_flags(raw: RawBatch) -> U32 | None:
     """Per-sample flags: each channel the chip marked invalid, each sensor at full scale, and
-    the chip's alarm."""
-    flags = np.zeros(raw.n, dtype=np.uint32)
+    the chip's alarm. None when no sample has any (the usual case: nothing to allocate)."""
+    flags: U32 | None = None
+    n = raw.n
     for ch, rc in raw.channels.items():
         if rc.invalid is not None:
-            flags[rc.invalid] |= np.uint32(ch)
-        sat = SATURATED.get(ch)
-        if sat is not None and rc.full_scale is not None and raw.n:
+            flags = np.zeros(n, dtype=np.uint32) if flags is None else flags
+            flags[rc.invalid] |= _BIT[ch]
+        fs = rc.full_scale
+        if fs is not None and n and ch in _SAT:
             d = rc.data
-            if d.max() >= rc.full_scale or d.min() <= -rc.full_scale:  # rare: then per sample
-                hit = (np.abs(d) >= rc.full_scale).reshape(raw.n, -1).any(axis=1)
-                flags[hit] |= np.uint32(sat)
+            if _max(d, None) >= fs or _min(d, None) <= -fs:  # rare: only then per sample
+                hit = (np.abs(d) >= fs).reshape(n, -1).any(axis=1)
+                flags = np.zeros(n, dtype=np.uint32) if flags is None else flags
+                flags[hit] |= _SAT[ch]
     if raw.alarm is not None:
+        flags = np.zeros(n, dtype=np.uint32) if flags is None else flags
         flags[raw.alarm] |= _ALARM
     return flags
 
@@ -64,7 +73,12 @@ def to_si(raw: RawBatch) -> dict[Channel, F64]:
     """Counts to SI units; a value the chip marked invalid becomes NaN."""
     out: dict[Channel, F64] = {}
     for ch, rc in raw.channels.items():
-        si = rc.data.astype(np.float64) * rc.scale if rc.scale != 1.0 else rc.data.astype(float)
+        if rc.scale != 1.0:
+            si = rc.data.astype(np.float64) * rc.scale
+        elif rc.invalid is not None:
+            si = rc.data.astype(np.float64)  # a copy: NaN goes in below
+        else:
+            si = rc.data.astype(np.float64, copy=False)
         if rc.invalid is not None:
             si[rc.invalid] = np.nan
         out[ch] = si
@@ -78,10 +92,12 @@ def calibrate(cal: Calibration | None, si: dict[Channel, F64]) -> dict[Channel, 
     return {**si, Channel.ACCEL: accel, Channel.GYRO: gyro}
 
 
-def holes(raw: RawBatch, flags: U32) -> npt.NDArray[np.bool_] | None:
+def holes(raw: RawBatch, flags: U32 | None) -> npt.NDArray[np.bool_] | None:
     """Samples with no valid measurement at all (every channel but temperature invalid): they
     are not published, and count as lost. None when there are none."""
-    motion = int(sum(raw.channels)) & ~int(Channel.TEMPERATURE)
+    if flags is None or all(rc.invalid is None for rc in raw.channels.values()):
+        return None
+    motion = sum(int(c) for c in raw.channels) & ~_TEMPERATURE
     if not motion or not (flags & INVALID_MASK).any():
         return None
     hole = (flags & np.uint32(motion)) == motion
@@ -95,7 +111,7 @@ class SampleBatch:
     flags: int  # per batch
     t_ns: npt.NDArray[np.int64]
     channels: dict[Channel, F64]
-    sample_flags: U32
+    sample_flags: U32 | None  # None: no sample has a flag
     hole: npt.NDArray[np.bool_] | None = None
 
     @property

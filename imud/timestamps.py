@@ -18,6 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+_min, _max = np.minimum.reduce, np.maximum.reduce  # without ndarray.min's Python wrapper
+
 
 class _Ring:
     """The last `size` reads as rows (k, t_before, t_after, segment), oldest first, in a
@@ -87,8 +89,13 @@ class SampleClock:
         """The chip's measured output rate."""
         return 1e9 / self.period
 
-    def _line(self, k: npt.NDArray[np.float64] | float) -> npt.NDArray[np.float64] | float:
-        return self._t_ref + self._my + self.period * (np.asarray(k) - self._k_ref - self._mk)
+    def _line(self, k: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """The fitted sample grid at indices `k` (relative to the reference: small numbers, so
+        no precision is lost however long the stream has run)."""
+        out: npt.NDArray[np.float64] = (
+            self._t_ref + self._my + self.period * (k - (self._k_ref + self._mk))
+        )
+        return out
 
     def _observe(self, k: int, t_before: int, t_after: int, new_segment: bool = False) -> None:
         """Add one read to the fit. The slope is pooled over segments between FIFO resyncs, so a
@@ -138,8 +145,9 @@ class SampleClock:
 
     def _band(self, rows: npt.NDArray[np.float64]) -> tuple[float, float]:
         k, tb, ta = rows[:, 0], rows[:, 1], rows[:, 2]
-        hi = float(np.min(ta - self._line(k)))  # t_k <= t_after
-        lo = float(np.max(tb - self._line(k + 1)))  # t_{k+1} > t_before
+        line = self._line(k)
+        hi = float(_min(ta - line))  # t_k <= t_after
+        lo = float(_max(tb - line)) - self.period  # t_{k+1} > t_before
         return lo, hi
 
     def _correction(self) -> float:

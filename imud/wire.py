@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from imud.channels import CHANNELS, Channel, SampleFlag, channels_in
+from imud.channels import CHANNELS, ORDER, Channel, SampleFlag
 
 MAGIC = b"IMUD"
 VERSION = 2
@@ -100,13 +100,15 @@ def encode(
     pad = (-len(name)) % 8
     mask = 0
     parts: list[bytes] = []
-    for ch in channels_in(sum(channels)):
-        width = CHANNELS[ch].width
-        arr = np.ascontiguousarray(channels[ch], dtype="<f4")
+    for ch, bit, width in ORDER:
+        values = channels.get(ch)
+        if values is None:
+            continue
+        arr = np.ascontiguousarray(values, dtype="<f4")
         if arr.size != n * width:
             raise WireError(f"{CHANNELS[ch].key}: {arr.shape} values for {n} samples")
         parts.append(arr.tobytes())
-        mask |= ch
+        mask |= bit
     if sample_flags is None:
         sf = bytes(4 * n)
     else:
@@ -132,9 +134,9 @@ def decode(buf: bytes) -> Batch:
             f"channel mask 0x{mask:x} at byte 28 names channels this decoder does not know "
             f"(known: 0x{_KNOWN:x}): upgrade imud on the receiving side"
         )
-    chans = channels_in(mask)
+    chans = [(c, w) for c, bit, w in ORDER if mask & bit]
     off = HEADER.size + name_len + (-name_len) % 8
-    need = off + n * (8 + 4 + 4 * sum(CHANNELS[c].width for c in chans))
+    need = off + n * (8 + 4 + 4 * sum(w for _, w in chans))
     if len(buf) != need:
         raise WireError(
             f"batch of {n} samples with mask 0x{mask:x} needs {need} bytes, got {len(buf)}"
@@ -148,8 +150,7 @@ def decode(buf: bytes) -> Batch:
     sf = np.frombuffer(buf, "<u4", n, off)
     off += 4 * n
     out: dict[Channel, F32] = {}
-    for c in chans:
-        width = CHANNELS[c].width
+    for c, width in chans:
         a = np.frombuffer(buf, "<f4", width * n, off)
         out[c] = a.reshape(n, width) if width > 1 else a
         off += 4 * width * n

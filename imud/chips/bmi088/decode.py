@@ -29,7 +29,6 @@ _HDR_SKIP = int(AccFifoHeader.SKIP)
 _HDR_SENSORTIME = int(AccFifoHeader.SENSORTIME)
 _HDR_OVER_READ = int(AccFifoHeader.OVER_READ)
 _FRAME_LENGTH = {int(h): n for h, n in ACC_FIFO_FRAME_BYTES.items()}
-TEMP_INVALID_U11 = TEMP_INVALID_MSB << 3
 
 
 def accel_scale_ms2(range_g: int) -> float:
@@ -42,11 +41,11 @@ def gyro_scale_rads(range_dps: int) -> float:
 
 
 def temperature_c(msb: int, lsb: int) -> float:
-    """TEMP_MSB/TEMP_LSB: an 11-bit two's-complement value, 0.125 C per LSB, 0 at 23 C; the
-    most negative value (TEMP_MSB 0x80) means no valid reading: NaN."""
-    u11 = (msb << 3) | (lsb >> 5)
-    if u11 == TEMP_INVALID_U11:
+    """TEMP_MSB/TEMP_LSB: an 11-bit two's-complement value, 0.125 C per LSB, 0 at 23 C.
+    TEMP_MSB 0x80 means no valid reading, whatever TEMP_LSB holds (DS 5.3.7): NaN."""
+    if msb == TEMP_INVALID_MSB:
         return math.nan
+    u11 = (msb << 3) | (lsb >> 5)
     s11 = u11 - 2048 if u11 > 1023 else u11
     return s11 * 0.125 + 23.0
 

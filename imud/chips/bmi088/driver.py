@@ -154,7 +154,7 @@ class Bmi088Driver:
         for c in (self.accel_clock, self.gyro_clock):
             if c.k_last >= 0:  # samples before this start: count the gap on the new grid
                 c.rebase()
-        self.pairer.reset()
+        self.pairer.restart()  # gyro samples read before the restart are still published
         self._checker.restart()
 
     def _read_temperature(self) -> float:
@@ -257,9 +257,11 @@ class Bmi088Driver:
             self._flush_accel()
 
     def read(self) -> RawBatch:
+        # the register check first: a mismatch reinitialises both dies, so samples read in this
+        # poll would only be thrown away with it
+        self._checker.check_next()
         self._read_gyro()  # gyro first: the accel read after it covers its newest samples
         self._read_accel()
-        self._checker.check_next()
         p = self.pairer.take()
         period = self.gyro_clock.period
         if p is None:

@@ -7,7 +7,8 @@ rate and times, and each gyro sample gets the accel value linearly interpolated 
 the two accel samples around it. Interpolation needs the accel sample *after* a gyro sample, so a
 gyro sample newer than the newest accel sample waits for the next read (at most one accel
 period plus one poll). A gyro sample whose two accel neighbours are not consecutive (accel
-samples lost between them) gets no accel value: it becomes a counted hole, not a guess.
+samples lost between them) gets no accel value, not a guess: it is published with its accel
+invalid (the gyro measured it).
 """
 
 from __future__ import annotations
@@ -44,11 +45,17 @@ class DiePairer:
         self.reset()
 
     def reset(self) -> None:
-        """The chip restarted: pending gyro samples are dropped (counted as lost when the next
+        """Forget everything: pending gyro samples are dropped (counted as lost when the next
         batch's seq jumps past them) and the accel history restarts."""
         self._g_t = np.zeros(0, dtype=np.int64)
         self._g_seq = np.zeros(0, dtype=np.int64)
         self._g = np.zeros((0, 3), dtype=np.int32)
+        self.restart()
+
+    def restart(self) -> None:
+        """The chip was reinitialised: the accel history restarts (no interpolation across the
+        restart). Gyro samples already read stay: the gyro measured them, and those no accel
+        sample read before the restart brackets are published with their accel invalid."""
         self._a_t = np.zeros(0, dtype=np.int64)
         self._a_seq = np.zeros(0, dtype=np.int64)
         self._a = np.zeros((0, 3), dtype=np.float64)

@@ -47,6 +47,10 @@ FIGURES = ChipFigures(
     gyro_temp_drift_dps_per_c=0.015,
 )
 
+# plain ints on the hot path: an operator on an IntFlag builds a new enum member each time
+_ACC_EN = int(R.AccFifoConfig1.ACC_EN)
+_STOP_WHEN_FULL = int(R.AccFifoConfig0.FIFO_MODE)
+_HDR_ACCEL = int(R.AccFifoHeader.ACCEL)
 ACC_RESET_BUSY_NS = 1_000_000
 GYR_RESET_BUSY_NS = 30_000_000
 POWER_SETTLE_NS = 5_000_000
@@ -71,7 +75,8 @@ _GYR_WRITABLE = {G.GYRO_RANGE, G.GYRO_BANDWIDTH, G.GYRO_LPM1, G.GYRO_INT_CTRL,
 
 def temperature_bytes(temp_c: float) -> tuple[int, int]:
     """TEMP_MSB, TEMP_LSB for a temperature: 11-bit two's complement, 0.125 C/LSB, 0 at 23 C."""
-    s11 = max(-1023, min(1023, round((temp_c - 23.0) / 0.125)))  # -1024 means invalid
+    # TEMP_MSB 0x80 (-1024 ... -1017) means invalid: the lowest reading is -1016 (TEMP_MSB 0x81)
+    s11 = max(-1016, min(1023, round((temp_c - 23.0) / 0.125)))
     u11 = s11 & 0x7FF
     return u11 >> 3, (u11 & 0x7) << 5
 
@@ -128,14 +133,14 @@ class Bmi088AccelSim(SampledChip):
             self.temp_next_ns += TEMP_UPDATE_NS * max(
                 1, math.ceil((int(t_ns[-1]) - self.temp_next_ns) / TEMP_UPDATE_NS)
             )
-        if not self.regs[A.FIFO_CONFIG_1] & R.AccFifoConfig1.ACC_EN:
+        if not self.regs[A.FIFO_CONFIG_1] & _ACC_EN:
             return
         n = acc.shape[0]
         frames = np.empty((n, 7), dtype=np.uint8)
-        frames[:, 0] = R.AccFifoHeader.ACCEL
+        frames[:, 0] = _HDR_ACCEL
         frames[:, 1:] = acc.astype("<i2").view(np.uint8).reshape(n, 6)
         room = ACC_FRAMES_MAX - len(self.fifo) // 7
-        if self.regs[A.FIFO_CONFIG_0] & R.AccFifoConfig0.FIFO_MODE:  # stop when full
+        if self.regs[A.FIFO_CONFIG_0] & _STOP_WHEN_FULL:  # stop when full
             self.fifo += frames[:room].tobytes()
             self.frames_dropped += max(0, n - room)
             return

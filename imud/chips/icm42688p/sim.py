@@ -44,6 +44,13 @@ GYRO_STARTUP_NS = 30_000_000
 RESET_BUSY_NS = 1_000_000
 TICK_NS = 1000.0 * 32 / 30  # FIFO timestamp tick at nominal clock (PLL 19.2 MHz, TDK eMD)
 INVALID16 = -32768
+# plain ints on the hot path: an operator on an IntFlag builds a new enum member each time
+_DATA_RDY = int(R.IntStatus.DATA_RDY_INT)
+_FIFO_FULL = int(R.IntStatus.FIFO_FULL_INT)
+_HIRES = int(R.FifoConfig1.HIRES_EN)
+_BOTH = int(R.FifoConfig1.ACCEL_EN | R.FifoConfig1.GYRO_EN)
+_HDR = int(R.Header.ACCEL | R.Header.GYRO) | R.HEADER_TMST_FSYNC.bits(R.TMST_FSYNC_ODR)
+_HDR_20 = int(R.Header.HIRES_20)
 ODR_BY_CODE = {code: hz for hz, code in R.ODR_CODES.items()}
 
 _BANK0_DEFAULTS = {
@@ -95,7 +102,7 @@ class Icm42688pSim(SampledChip):
 
     @property
     def hires(self) -> bool:
-        return bool(self.regs[B0.FIFO_CONFIG1] & R.FifoConfig1.HIRES_EN)
+        return bool(self.regs[B0.FIFO_CONFIG1] & _HIRES)
 
     def _lsb(self, hires: bool) -> tuple[float, float]:
         """SI units per count: +-full scale spans 2^16 (2^20) counts; full scale halves with
@@ -130,10 +137,9 @@ class Icm42688pSim(SampledChip):
         shift = 4 if hires else 0
         self.latest[:3], self.latest[3:] = acc[-1] >> shift, gyr[-1] >> shift
         self.latest_temp = int(np.rint((temp[-1] - 25.0) * 132.48))
-        self.int_status |= R.IntStatus.DATA_RDY_INT
+        self.int_status |= _DATA_RDY
         mode = self.regs[B0.FIFO_CONFIG] >> 6
-        en = self.regs[B0.FIFO_CONFIG1] & (R.FifoConfig1.ACCEL_EN | R.FifoConfig1.GYRO_EN)
-        if mode and en == (R.FifoConfig1.ACCEL_EN | R.FifoConfig1.GYRO_EN):
+        if mode and self.regs[B0.FIFO_CONFIG1] & _BOTH == _BOTH:
             self._push(self._packets(t_ns, acc, gyr, temp, hires), mode)
 
     def _ticks(self, t_ns: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
@@ -153,8 +159,7 @@ class Icm42688pSim(SampledChip):
         n = t_ns.shape[0]
         size = R.PACKET4_BYTES if hires else R.PACKET3_BYTES
         out = np.zeros((n, size), dtype=np.uint8)
-        hdr = R.Header.ACCEL | R.Header.GYRO | R.HEADER_TMST_FSYNC.bits(R.TMST_FSYNC_ODR)
-        out[:, 0] = hdr | (R.Header.HIRES_20 if hires else 0)
+        out[:, 0] = _HDR | (_HDR_20 if hires else 0)
         hi_a, hi_g = (acc >> 4, gyr >> 4) if hires else (acc, gyr)
         be = np.concatenate([hi_a, hi_g], axis=1).astype(">i2").view(np.uint8).reshape(n, 12)
         out[:, 1:13] = be
@@ -183,13 +188,13 @@ class Icm42688pSim(SampledChip):
                 drop = -(-excess // size) * size
                 del self.fifo[:drop]
                 self.packets_dropped += drop // size
-                self.int_status |= R.IntStatus.FIFO_FULL_INT
+                self.int_status |= _FIFO_FULL
             return
         keep = packets[:room]  # stop-on-full: what does not fit is dropped
         self.fifo += keep.tobytes()
         if len(packets) > room:
             self.packets_dropped += len(packets) - room
-            self.int_status |= R.IntStatus.FIFO_FULL_INT
+            self.int_status |= _FIFO_FULL
 
     def _room_for_due(self) -> bool:
         period = 1e9 / self.rate_hz
@@ -243,7 +248,7 @@ class Icm42688pSim(SampledChip):
         if reg == B0.DEVICE_CONFIG and value & R.DeviceConfig.SOFT_RESET_CONFIG:
             self._power_on_reset()
             self.busy_until_ns = now + RESET_BUSY_NS
-            self.int_status = R.IntStatus.RESET_DONE_INT
+            self.int_status = int(R.IntStatus.RESET_DONE_INT)
             return
         if reg == B0.SIGNAL_PATH_RESET:
             if value & R.SignalPathReset.FIFO_FLUSH:

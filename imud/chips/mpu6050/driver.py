@@ -28,6 +28,7 @@ SAMPLE_BYTES = 12  # accel xyz + gyro xyz
 FULL_SCALE = 32767  # |count| of a saturated int16 reading
 FIFO_SENSORS = int(R.FifoEn.XG | R.FifoEn.YG | R.FifoEn.ZG | R.FifoEn.ACCEL)
 _WHOLE = BitField(0xFF)
+_OFLOW = int(R.IntStatus.FIFO_OFLOW_INT)  # an int: `&` with an IntFlag builds an enum member
 
 
 def accel_scale_ms2(range_g: int) -> float:
@@ -189,12 +190,12 @@ class Mpu6050Driver:
         if self._need_reset:
             self._fifo_restart()
         int_status, temp_raw = decode_status_block(self.dev.read(R.Register.INT_STATUS, 9))
-        temp = float(temperature_c(temp_raw))
+        temp = temp_raw / 340.0 + 36.53  # temperature_c's formula, without NumPy for one value
         t_before = self.clock.now_ns()
         count = int.from_bytes(self.dev.read(R.Register.FIFO_COUNT_H, 2), "big")
         t_after = self.clock.now_ns()
         # Overflow flag, or so close to full that the count->read race could wrap (Linux margin)
-        if int_status & R.IntStatus.FIFO_OFLOW_INT or count > R.FIFO_SIZE - 3 * SAMPLE_BYTES:
+        if int_status & _OFLOW or count > R.FIFO_SIZE - 3 * SAMPLE_BYTES:
             self.counters.fifo_overflows += 1
             self._fifo_restart()
             return self._batch(_NONE, _NONE, temp, t_before, t_after)

@@ -40,6 +40,12 @@ FIGURES = ChipFigures(
     gyro_temp_drift_dps_per_c=0.02,
 )
 
+# plain ints on the hot path: an operator on an IntFlag builds a new enum member each time
+_DATA_RDY = int(IntStatus.DATA_RDY_INT)
+_OFLOW = int(IntStatus.FIFO_OFLOW_INT)
+_FIFO_ON = int(UserCtrl.FIFO_EN)
+_EN_ACCEL, _EN_TEMP = int(FifoEn.ACCEL), int(FifoEn.TEMP)
+_EN_GYRO = ((int(FifoEn.XG), 0), (int(FifoEn.YG), 1), (int(FifoEn.ZG), 2))
 RESET_BUSY_NS = 20_000_000  # the chip ignores the bus while it reloads after DEVICE_RESET
 _WRITABLE = {
     R.SMPLRT_DIV,
@@ -113,8 +119,8 @@ class Mpu6050Sim(SampledChip):
         gyr = quantise(wm, self.gyro_lsb)
         self.latest_accel, self.latest_gyro = acc[-1], gyr[-1]
         self.latest_temp_raw = int(np.rint((temp[-1] - 36.53) * 340.0))
-        self.int_status |= IntStatus.DATA_RDY_INT
-        if self.regs[R.USER_CTRL] & UserCtrl.FIFO_EN and self.regs[R.FIFO_EN]:
+        self.int_status |= _DATA_RDY
+        if self.regs[R.USER_CTRL] & _FIFO_ON and self.regs[R.FIFO_EN]:
             self._push_fifo(acc, gyr, temp)
 
     def _hold_accel_1khz(self, t_ns: np.ndarray, fm: np.ndarray) -> np.ndarray:
@@ -134,11 +140,11 @@ class Mpu6050Sim(SampledChip):
     def _push_fifo(self, acc: np.ndarray, gyr: np.ndarray, temp: np.ndarray) -> None:
         en = self.regs[R.FIFO_EN]
         cols: list[np.ndarray] = []
-        if en & FifoEn.ACCEL:
+        if en & _EN_ACCEL:
             cols.append(acc)
-        if en & FifoEn.TEMP:
+        if en & _EN_TEMP:
             cols.append(np.rint((temp - 36.53) * 340.0).astype(np.int32)[:, None])
-        for bit, axis in ((FifoEn.XG, 0), (FifoEn.YG, 1), (FifoEn.ZG, 2)):
+        for bit, axis in _EN_GYRO:
             if en & bit:
                 cols.append(gyr[:, axis : axis + 1])
         if not cols:
@@ -149,7 +155,7 @@ class Mpu6050Sim(SampledChip):
         if excess > 0:  # the MPU6050 overwrites its oldest bytes and flags the overflow
             del self.fifo[:excess]
             self.fifo_bytes_dropped += excess
-            self.int_status |= IntStatus.FIFO_OFLOW_INT
+            self.int_status |= _OFLOW
 
     # --- bus side ---------------------------------------------------------------------------
     def _check_busy(self) -> None:
