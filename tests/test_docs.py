@@ -117,3 +117,33 @@ def test_the_docs_decoder_decodes_what_the_daemon_sends(tmp_path: Path) -> None:
             for c, arr in ours.channels.items():
                 np.testing.assert_array_equal(theirs[CHANNELS[c].key], arr)
     assert ic.decode(payloads["imud/m0/sim/truth"][0]).kind == 1
+
+
+# a repository path with a file extension, not part of an absolute path (/etc/imud/imud.toml)
+PATH_REF = re.compile(
+    r"(?<![/\w.])((?:docs|imud|tests|bench|configs|systemd)/[\w/<>*.-]*\.(?:py|md|toml|service|rules|conf))\b"
+)
+OUTSIDE = ("/work/", "../shared", "seed-facts.md", "chips-invensense-bosch")
+TEXT_FILES = [
+    *DOCS,
+    *sorted((REPO / "imud").rglob("*.py")),
+    *sorted((REPO / "tests").glob("*.py")),
+    *sorted((REPO / "bench").glob("*.py")),
+    *sorted((REPO / "configs").glob("*.toml")),
+    *sorted((REPO / "systemd").iterdir()),
+]
+
+
+@pytest.mark.parametrize("path", TEXT_FILES, ids=lambda p: str(p.relative_to(REPO)))
+def test_code_and_docs_cite_only_files_inside_the_repository(path: Path) -> None:
+    text = path.read_text()
+    if path != Path(__file__).resolve():
+        for outside in OUTSIDE:
+            assert outside not in text, f"{path.name} cites {outside!r}, outside the repository"
+    missing = []
+    for ref in PATH_REF.findall(text):
+        if "<" in ref or "*" in ref or ref.startswith("imud/chips/<"):
+            continue  # a pattern, not a file
+        if not (REPO / ref).exists():
+            missing.append(ref)
+    assert not missing, f"{path.name} cites files that do not exist: {missing}"
