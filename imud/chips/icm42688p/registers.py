@@ -187,5 +187,5 @@ INVALID_TEMP_8 = -128  # the int8 FIFO temperature's invalid value
 TIMESTAMP_MODULO = 1 << 16  # the FIFO timestamp field
 RESET_WAIT_NS = 2_000_000  # 1 ms after SOFT_RESET_CONFIG, with margin
 POWER_ON_WAIT_NS = 300_000  # no register write within 200 us of a PWR_MGMT0 change
-STARTUP_WAIT_NS = 50_000_000  # gyro start-up before its data is valid
+STARTUP_WAIT_NS = 60_000_000  # gyro start-up before its data is valid (TDK, Linux: 60 ms)
 MAX_SPI_HZ = 24_000_000
