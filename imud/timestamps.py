@@ -83,6 +83,7 @@ class SampleClock:
         self._history = _Ring(memory_reads)
         self._bounds = (1.0, 0.0)  # (lo, hi) on the period; lo > hi means "none yet"
         self._segment = 0
+        self._segment_pending = False  # the next observation starts a new segment
 
     @property
     def rate_hz(self) -> float:
@@ -103,7 +104,8 @@ class SampleClock:
         if self._count == 0:
             self._k_ref, self._t_ref = k, t_after
         self._count += 1
-        if new_segment:
+        if new_segment or self._segment_pending:
+            self._segment_pending = False
             self._seg_n = 0
             self._segment += 1
         self._seg_n += 1
@@ -292,9 +294,17 @@ class SampleClock:
         first = k_new - n + 1
         lost = first - (self.k_last + 1) if self.k_last >= 0 else 0
         if resync and restart is not None and self._count:
-            self._observe(first - 1, restart[0], restart[1], new_segment=True)
-            if not full:
-                self._observe(k_new, t_before, t_after)
+            # the restart instant pins the new segment's phase only when it is known to within a
+            # couple of periods: a wide one (a long FIFO burst after a stop-on-full overflow) would
+            # pull the fitted line off by its half width
+            if restart[1] - restart[0] <= 2 * self.period:
+                self._observe(first - 1, restart[0], restart[1], new_segment=True)
+                if not full:
+                    self._observe(k_new, t_before, t_after)
+            elif not full:
+                self._observe(k_new, t_before, t_after, new_segment=True)
+            else:
+                self._segment_pending = True
         elif not full or self._count == 0:
             self._observe(k_new, t_before, t_after, new_segment=resync)
         ks = np.arange(first, k_new + 1, dtype=np.float64)

@@ -1,10 +1,9 @@
 """BMI088 config accepted and rejected through `imud.config.parse_config`, messages checked.
 
-Expected values come from the facts sheet (/work/shared/reference/chips-invensense-bosch.md,
-section 3): accel ODR codes 12.5..1600 Hz, accel ranges 3/6/12/24 g, gyro ranges 125..2000 dps,
-the GYRO_BANDWIDTH table (code -> ODR / filter), the 10 MHz SPI limit. The I2C bandwidth a
-BMI088 needs is written out in each test: (accel ODR x 7 B + gyro ODR x 6 B) x 9 bits a byte x
-1.25 overhead.
+Expected values come from the facts sheet (docs/chips/bmi088.md): accel ODR codes 12.5..1600 Hz,
+accel ranges 3/6/12/24 g, gyro ranges 125..2000 dps, the GYRO_BANDWIDTH table (code -> ODR /
+filter), the 10 MHz SPI limit. The I2C bandwidth a BMI088 needs is written out in each test: (accel
+ODR x 7 B + gyro ODR x 6 B) x 9 bits a byte x 1.25 overhead.
 """
 
 from __future__ import annotations
@@ -91,11 +90,19 @@ def test_minimal_bmi088_gets_defaults() -> None:
 
 
 def test_odr_hz_is_the_gyro_rate() -> None:
+    # the published rate is the gyro's, whatever the accel runs at: it picks GYRO_BANDWIDTH
     d = one(bmi(odr_hz=400, accel_odr_hz=1600))
-    assert d.odr_hz == 400.0
-    assert isinstance(d.odr_hz, float)
+    assert d.odr_hz == 400.0 and d.accel_odr_hz == 1600.0
+    assert d.gyro_bandwidth_code() == 0x03  # 400 Hz ODR, 47 Hz filter (the only one)
     d = one(bmi(odr_hz=100, accel_odr_hz=12.5))
-    assert d.odr_hz == 100.0
+    assert d.odr_hz == 100.0 and d.accel_odr_hz == 12.5
+    assert d.gyro_bandwidth_code() == 0x07  # 100 Hz ODR, 32 Hz filter (the widest)
+
+
+def test_gyro_odr_hz_is_no_longer_a_field() -> None:
+    # renamed odr_hz (the published rate): the old name is an unknown key, not silently ignored
+    msg = only_error(bmi(gyro_odr_hz=400))
+    assert "gyro_odr_hz" in msg
 
 
 def test_die_buses_are_accel_then_gyro() -> None:

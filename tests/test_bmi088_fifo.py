@@ -1,4 +1,5 @@
-"""BMI088 FIFO and register decoding from byte vectors written out from the datasheet layouts."""
+"""BMI088 FIFO and register decoding from byte vectors written out from the datasheet layouts
+(docs/chips/bmi088.md)."""
 
 from __future__ import annotations
 
@@ -9,8 +10,6 @@ import pytest
 
 from imud.chips.bmi088 import decode as d
 from imud.chips.bmi088 import registers as R
-from imud.chips.bmi088.registers import AccelRegister as A
-from imud.chips.bmi088.registers import GyroRegister as G
 
 G = 9.80665
 
@@ -88,15 +87,26 @@ def test_fifo_length_is_14_bit_little_endian() -> None:
     assert d.fifo_length(0xFF, 0xFF) == 0x3FFF  # the top two bits are not part of the count
 
 
+# DS section 5.3.7: u11 = TEMP_MSB * 8 + TEMP_LSB / 32, two's complement, 0.125 C/LSB, 0 at 23 C
 @pytest.mark.parametrize(("msb", "lsb", "celsius"), [
     (0x00, 0x00, 23.0),  # 0 -> 23 C
     (0x01, 0x20, 23.0 + 9 * 0.125),  # u11 = 8 + 1 = 9
     (0x7F, 0xE0, 23.0 + 1023 * 0.125),  # largest positive
-    (0x80, 0x00, 23.0 - 1024 * 0.125),  # u11 = 1024 -> -1024
+    (0x3E, 0x00, 85.0),  # the datasheet's worked examples
+    (0x00, 0x60, 23.375),
+    (0xC1, 0x00, -40.0),
     (0xFF, 0xE0, 23.0 - 0.125),  # u11 = 2047 -> -1
+    (0x81, 0x00, 23.0 - 1016 * 0.125),  # u11 = 1032 -> -1016: the lowest code not invalid
+    (0x00, 0x1F, 23.0),  # only TEMP_LSB[7:5] carry data
 ])  # fmt: skip
 def test_temperature(msb: int, lsb: int, celsius: float) -> None:
     assert d.temperature_c(msb, lsb) == pytest.approx(celsius)
+
+
+@pytest.mark.parametrize("lsb", [0x00, 0x20, 0xE0])
+def test_temperature_msb_0x80_is_invalid(lsb: int) -> None:
+    # the datasheet's table: TEMP_MSB 0x80 (TEMP_LSB not given) -> "Invalid"
+    assert math.isnan(d.temperature_c(0x80, lsb))
 
 
 def test_scales() -> None:

@@ -3,7 +3,7 @@
 The accel die is reached as the driver reaches it: `SpiDevice` (one dummy byte) over `SimSpiDev`,
 or `I2CDevice` over `SimI2CBus` (which, past 32 bytes, uses smbus2's own `i2c_msg`). Expected
 values come from the facts sheet (docs/chips/bmi088.md) and
-the simulator's stated model (imud/sim/bmi088.py docstring); each is worked out in the test.
+the simulator's stated model (imud/chips/bmi088/sim.py docstring); each is worked out in the test.
 Virtual time only moves when a test advances the clock, so counts of samples are exact up to one
 sample at either end of an interval.
 """
@@ -22,14 +22,18 @@ from imud.chips.bmi088 import decode as d
 from imud.chips.bmi088 import registers as R
 from imud.chips.bmi088.registers import AccelRegister as A
 from imud.chips.bmi088.registers import GyroRegister as G
-from imud.clock import VirtualClock
 from imud.chips.bmi088.sim import Bmi088Sim
+from imud.chips.bmi088.spec import SPEC
+from imud.clock import VirtualClock
 from imud.sim.i2c import SimI2CBus
 from imud.sim.settings import SimSettings
 from imud.sim.spi import SimSpiDev
 
 MS = 1_000_000
-G = 9.80665
+GRAVITY = 9.80665
+# SPI dummy bytes before register data on reads: one on the accel die, none on the gyro die
+# (docs/chips/bmi088.md, I2C addresses, interface)
+ACC_DUMMY, GYR_DUMMY = 1, 0
 ACC_ADDR, GYR_ADDR = 0x18, 0x68
 # ACC_CONF ODR code -> Hz, and GYRO_BANDWIDTH code -> ODR Hz (facts sheet 3.2)
 ACC_ODR_CODES = {0x5: 12.5, 0x6: 25, 0x7: 50, 0x8: 100, 0x9: 200, 0xA: 400, 0xB: 800, 0xC: 1600}
@@ -43,9 +47,10 @@ def make(**settings: Any) -> tuple[Bmi088Sim, VirtualClock]:
     return Bmi088Sim(SimSettings(**settings), clock), clock
 
 
-def accel_spi(sim: Bmi088Sim, dummy_bytes: int = 1) -> SpiDevice:
-    """The accel die on its own chip select, as the driver wraps it (dummy byte = 1)."""
-    return SpiDevice(SimSpiDev(sim.accel, dummy_bytes=sim.accel.spi_dummy_bytes), dummy_bytes)
+def accel_spi(sim: Bmi088Sim, dummy_bytes: int = ACC_DUMMY) -> SpiDevice:
+    """The accel die on its own chip select, wired as the chip's spec says and wrapped as the
+    driver wraps it (dummy byte = 1)."""
+    return SpiDevice(SimSpiDev(sim.accel, dummy_bytes=SPEC.dies[0].spi_dummy_bytes), dummy_bytes)
 
 
 def accel_spi_ready(sim: Bmi088Sim) -> SpiDevice:
@@ -166,8 +171,8 @@ def test_accel_soft_reset_busy_for_1ms() -> None:
 
 def test_accel_spi_reads_carry_one_dummy_byte() -> None:
     sim, _ = make()
-    spi = SimSpiDev(sim.accel, dummy_bytes=sim.accel.spi_dummy_bytes)
-    assert sim.accel.spi_dummy_bytes == 1
+    assert SPEC.dies[0].name == "accel" and SPEC.dies[0].spi_dummy_bytes == ACC_DUMMY
+    spi = SimSpiDev(sim.accel, dummy_bytes=SPEC.dies[0].spi_dummy_bytes)
     good, naive = SpiDevice(spi, dummy_bytes=1), SpiDevice(spi, dummy_bytes=0)
     good.read_u8(A.ACC_CHIP_ID)  # switch to SPI
     # on the wire: address, dummy byte, then the register data
@@ -181,8 +186,8 @@ def test_accel_spi_reads_carry_one_dummy_byte() -> None:
 
 def test_gyro_spi_has_no_dummy_byte_and_no_mode_switch() -> None:
     sim, _ = make()
-    assert sim.gyro.spi_dummy_bytes == 0
-    gyr = SpiDevice(SimSpiDev(sim.gyro, dummy_bytes=sim.gyro.spi_dummy_bytes), dummy_bytes=0)
+    assert SPEC.dies[1].name == "gyro" and SPEC.dies[1].spi_dummy_bytes == GYR_DUMMY
+    gyr = SpiDevice(SimSpiDev(sim.gyro, dummy_bytes=SPEC.dies[1].spi_dummy_bytes), dummy_bytes=0)
     assert gyr.read_u8(G.GYRO_CHIP_ID) == 0x0F  # the very first transfer answers
     assert gyr.read(G.GYRO_RANGE, 2) == bytes([0x00, 0x80])  # RANGE, BANDWIDTH reset values
 
@@ -456,6 +461,25 @@ def test_temperature_register_bytes(temp_c: float, msb: int, lsb: int) -> None:
     assert acc.read(A.TEMP_MSB, 2) == bytes([msb, lsb])
 
 
+@pytest.mark.parametrize(
+    ("temp_c", "msb", "lsb"),
+    [
+        # below what the 11-bit code holds: the lowest reading, -1016 (TEMP_MSB 0x81), never
+        # TEMP_MSB 0x80, which the datasheet reserves for "invalid" (DS 5.3.7)
+        (-150.0, 0x81, 0x00),
+        (-104.0, 0x81, 0x00),  # (-104 - 23) / 0.125 = -1016
+        (200.0, 0x7F, 0xE0),  # above: the highest, +1023
+    ],
+)
+def test_temperature_out_of_range_saturates_and_is_never_the_invalid_code(
+    temp_c: float, msb: int, lsb: int
+) -> None:
+    sim, _ = make(temperature_c=temp_c, temperature_limits_c=(-300.0, 300.0))
+    acc, _ = i2c_dies(sim)
+    assert acc.read(A.TEMP_MSB, 2) == bytes([msb, lsb])
+    assert not math.isnan(d.temperature_c(msb, lsb))
+
+
 def test_temperature_register_updates_every_1_28_s() -> None:
     sim, clock = make(temperature_c=25.0, temperature_ramp_c_per_min=60.0)  # 1 C a second
     acc, _ = i2c_dies(sim)
@@ -695,7 +719,7 @@ def test_accel_at_rest_reads_one_g(range_code: int) -> None:
     range_g = R.ACCEL_RANGES_G[range_code]
     ms2 = fifo.accel.mean(axis=0) * d.accel_scale_ms2(range_g)
     assert float(np.linalg.norm(ms2)) == pytest.approx(9.81, abs=0.02)
-    assert ms2[2] == pytest.approx(G, abs=0.02)  # level: +g along body z
+    assert ms2[2] == pytest.approx(GRAVITY, abs=0.02)  # level: +g along body z
     assert fifo.accel[:, 2].mean() == pytest.approx(32768 / range_g, rel=0.005)  # 1 g in LSB
 
 
@@ -712,9 +736,10 @@ def test_accel_tilted_at_rest_reads_gravity_components() -> None:
     assert len(fifo.accel) >= 90
     ms2 = fifo.accel.mean(axis=0) * d.accel_scale_ms2(6)  # reset range: 6 g
     r, p = math.radians(roll), math.radians(pitch)
-    expect = [-G * math.sin(p), G * math.cos(p) * math.sin(r), G * math.cos(p) * math.cos(r)]
+    g = GRAVITY
+    expect = [-g * math.sin(p), g * math.cos(p) * math.sin(r), g * math.cos(p) * math.cos(r)]
     assert ms2 == pytest.approx(expect, abs=0.02)
-    assert float(np.linalg.norm(ms2)) == pytest.approx(G, abs=0.02)
+    assert float(np.linalg.norm(ms2)) == pytest.approx(g, abs=0.02)
 
 
 # --- two oscillators -----------------------------------------------------------------------------
@@ -768,6 +793,6 @@ def test_clock_error_setting_pins_both_dies() -> None:
 def test_the_dies_share_one_body() -> None:
     sim, _ = make()
     assert sim.accel.t_origin_ns == sim.gyro.t_origin_ns
-    assert sim.dies == [sim.accel, sim.gyro]
-    with pytest.raises(TypeError, match="two dies"):
-        sim.read(0x00, 1)
+    # attached die by die, in the order of the chip's spec
+    assert [die.name for die in SPEC.dies] == ["accel", "gyro"]
+    assert tuple(sim.dies) == (sim.accel, sim.gyro)

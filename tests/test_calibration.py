@@ -61,6 +61,19 @@ def test_full_matrix_applied_not_transposed(tmp_path: Path) -> None:
     np.testing.assert_allclose(g, gyro, atol=0)  # no [gyro] table: identity, no bias
 
 
+def test_invalid_samples_stay_nan_and_touch_nothing_else(tmp_path: Path) -> None:
+    # A value the chip marked invalid reaches calibration as NaN (all three axes): it must stay
+    # NaN, and the full matrix must not spread it to other samples or to the other sensor.
+    cal = load_calibration(write(tmp_path, MATRIX))
+    nan = float("nan")
+    accel = np.array([[2.0, 4.0, 7.0], [nan, nan, nan], [1.0, 2.0, 3.0]])
+    gyro = np.array([[0.3, -0.2, 0.1], [0.1, 0.2, 0.3], [nan, nan, nan]])
+    a, g = cal.apply(accel, gyro)
+    assert np.isnan(a[1]).all() and np.isnan(g[2]).all()
+    np.testing.assert_allclose(a[[0, 2]], [[2.0, 5.0, 4.1], [0.0, 0.0, 0.0]], atol=1e-12)
+    np.testing.assert_allclose(g[:2], gyro[:2], atol=0)
+
+
 def test_apply_is_pure(tmp_path: Path) -> None:
     cal = load_calibration(write(tmp_path, MATRIX))
     accel = np.array([[2.0, 4.0, 7.0]])

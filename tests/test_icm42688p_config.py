@@ -1,6 +1,6 @@
 """ICM-42688-P config accepted and rejected, with the error message checked.
 
-Expected limits come from the datasheet facts (reference section 2, docs/chips/icm42688p-facts.md)
+Expected limits come from the datasheet facts (docs/chips/icm42688p.md)
 and the bus arithmetic written out in each test: a FIFO stream needs
 ODR x packet bytes (16, or 20 with hires) x bits per byte (8 on SPI, 9 on I2C) x 1.25 overhead.
 Most tests build the `[[device]]` table as a dict for `parse_config`; the SPI rate tests write

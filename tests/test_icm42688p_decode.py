@@ -6,7 +6,11 @@ Packet 3 (16 B): [0] header, [1..6] accel X/Y/Z int16, [7..12] gyro X/Y/Z int16,
 (T = raw/2.07 + 25), [14..15] timestamp uint16. Packet 4 (20 B): [1..12] accel/gyro bits [19:4],
 [13..14] temp int16 (T = raw/132.48 + 25), [15..16] timestamp, [17..19] X/Y/Z ext bytes with
 accel[3:0] in the high nibble and gyro[3:0] in the low nibble.
-Facts: /work/shared/reference/chips-invensense-bosch.md section 2, docs/chips/icm42688p-facts.md.
+Invalid values (docs/chips/icm42688p.md A.4, A.7 a): a sensor whose three axes all read -32768
+(-524288 in 20-bit packets; Linux's rule) or whose header bit is clear has no data in that
+packet, judged per sensor; the int8 temperature of packet 3 is invalid at -128 (TDK eMD), the int16
+temperature of packet 4 at -32768. In packet 4 a clear HEADER_20 bit means no new 20-bit data.
+Facts: docs/chips/icm42688p.md.
 """
 
 from __future__ import annotations
@@ -18,8 +22,8 @@ import numpy as np
 import pytest
 
 from imud.buses.spi import SpiDevice
-from imud.chips.api import start_blocking
-from imud.errors import DeviceIdentityError
+from imud.channels import Channel
+from imud.chips.api import FifoRead, start_blocking
 from imud.chips.icm42688p.config import Icm42688pConfig
 from imud.chips.icm42688p.driver import (
     PACKET3,
@@ -29,9 +33,10 @@ from imud.chips.icm42688p.driver import (
     decode_packets,
     gyro_scale_rads,
 )
+from imud.chips.icm42688p.sim import ACCEL_STARTUP_NS, GYRO_STARTUP_NS, Icm42688pSim
 from imud.clock import VirtualClock
 from imud.config import parse_config
-from imud.chips.icm42688p.sim import Icm42688pSim
+from imud.errors import DeviceIdentityError, RegisterMismatch
 from imud.sim.spi import SimSpiDev
 
 G = 9.80665  # standard gravity, m/s^2
@@ -95,7 +100,7 @@ def test_decode_one_packet3() -> None:
     assert p.temperature_c.tolist() == pytest.approx([P3_A_TEMP], abs=1e-9)
     assert p.temperature_c[0] == pytest.approx(35.1449, abs=1e-4)
     assert p.timestamp.tolist() == [P3_A_TS]
-    assert p.valid.tolist() == [True]
+    assert _invalid(p) == [(False, False, False)]
 
 
 def test_decode_negative_temperature_and_unsigned_timestamp() -> None:
@@ -104,7 +109,7 @@ def test_decode_negative_temperature_and_unsigned_timestamp() -> None:
     assert p.gyro.tolist() == [P3_B_GYRO]
     assert p.temperature_c[0] == pytest.approx(P3_B_TEMP, abs=1e-9)  # about 15.34 degC
     assert p.timestamp.tolist() == [P3_B_TS]  # not -2
-    assert p.valid.tolist() == [True]
+    assert _invalid(p) == [(False, False, False)]
 
 
 def test_decoded_counts_are_wide_ints() -> None:
@@ -120,7 +125,7 @@ def test_decode_several_packets_in_order() -> None:
     assert p.gyro.tolist() == [P3_A_GYRO, P3_B_GYRO, P3_A_GYRO]
     assert p.timestamp.tolist() == [P3_A_TS, P3_B_TS, P3_A_TS]
     assert p.temperature_c.tolist() == pytest.approx([P3_A_TEMP, P3_B_TEMP, P3_A_TEMP])
-    assert p.valid.tolist() == [True, True, True]
+    assert _invalid(p) == [(False, False, False)] * 3
 
 
 @pytest.mark.parametrize("extra", [1, 8, 15])
@@ -135,7 +140,7 @@ def test_no_whole_packet_gives_empty_arrays(data: bytes) -> None:
     p = decode_packets(data, hires=False)
     assert p.n == 0
     assert p.accel.shape == (0, 3) and p.gyro.shape == (0, 3)
-    assert p.valid.shape == (0,)
+    assert p.accel_invalid.shape == p.gyro_invalid.shape == p.temperature_invalid.shape == (0,)
 
 
 def test_fifo_empty_header_ends_decoding() -> None:
@@ -158,30 +163,72 @@ def test_fifo_empty_first_gives_nothing() -> None:
     assert p.accel.shape == (0, 3)
 
 
+def _invalid(p: Any) -> list[tuple[bool, bool, bool]]:
+    """Per packet: (accel invalid, gyro invalid, temperature invalid)."""
+    return list(
+        zip(
+            p.accel_invalid.tolist(),
+            p.gyro_invalid.tolist(),
+            p.temperature_invalid.tolist(),
+            strict=True,
+        )
+    )
+
+
 @pytest.mark.parametrize(
-    ("packet", "valid"),
+    ("packet", "accel_bad", "gyro_bad"),
     [
-        (ACCEL_INVALID, False),  # accel x/y/z all -32768
-        (GYRO_INVALID, False),  # gyro x/y/z all -32768
-        (bytes([0x28]) + P3_A[1:], False),  # header without ACCEL
-        (bytes([0x48]) + P3_A[1:], False),  # header without GYRO
-        (bytes([0x08]) + P3_A[1:], False),  # neither
-        (P3_A, True),  # gyro z alone is -32768: still a sample
-        (bytes([0x68, 0x80, 0x00, 0x80, 0x00, 0x80, 0x01]) + P3_A[7:], True),  # -32767 on z
+        (ACCEL_INVALID, True, False),  # accel x/y/z all -32768: the gyro is still data
+        (GYRO_INVALID, False, True),  # gyro x/y/z all -32768: the accel is still data
+        (ACCEL_INVALID[:7] + GYRO_INVALID[7:], True, True),  # both: nothing but temperature
+        (bytes([0x28]) + P3_A[1:], True, False),  # header without ACCEL (bit 6)
+        (bytes([0x48]) + P3_A[1:], False, True),  # header without GYRO (bit 5)
+        (bytes([0x08]) + P3_A[1:], True, True),  # neither
+        (P3_A, False, False),  # gyro z alone is -32768: still a sample
+        (bytes([0x68, 0x80, 0x00, 0x80, 0x00, 0x80, 0x01]) + P3_A[7:], False, False),  # z -32767
     ],
 )
-def test_packet3_validity(packet: bytes, valid: bool) -> None:
+def test_packet3_validity_per_sensor(packet: bytes, accel_bad: bool, gyro_bad: bool) -> None:
     assert len(packet) == 16
     p = decode_packets(packet, hires=False)
     assert p.n == 1
-    assert p.valid.tolist() == [valid]
+    # the temperature byte (21) is valid whatever the motion sensors say
+    assert _invalid(p) == [(accel_bad, gyro_bad, False)]
+
+
+@pytest.mark.parametrize(
+    ("raw8", "celsius"),
+    [
+        (-128, None),  # 0x80: TDK's INVALID_VALUE_FIFO_1B, no new temperature
+        (-127, -127 / 2.07 + 25.0),  # the lowest real reading, about -36.35 degC
+        (127, 127 / 2.07 + 25.0),  # the highest, about 86.35 degC
+        (0, 25.0),
+    ],
+)
+def test_packet3_temperature_invalid_only_at_minus_128(raw8: int, celsius: float | None) -> None:
+    packet = P3_A[:13] + bytes([raw8 & 0xFF]) + P3_A[14:]
+    p = decode_packets(packet, hires=False)
+    assert _invalid(p) == [(False, False, celsius is None)]  # accel and gyro unaffected
+    if celsius is not None:
+        assert p.temperature_c[0] == pytest.approx(celsius, abs=1e-9)
+    assert p.accel.tolist() == [P3_A_ACCEL] and p.gyro.tolist() == [P3_A_GYRO]
 
 
 def test_invalid_packet_among_valid_ones() -> None:
-    p = decode_packets(P3_A + ACCEL_INVALID + P3_B + GYRO_INVALID, hires=False)
-    assert p.valid.tolist() == [True, False, True, False]
+    no_temp = P3_B[:13] + bytes([0x80]) + P3_B[14:]
+    p = decode_packets(P3_A + ACCEL_INVALID + no_temp + GYRO_INVALID, hires=False)
+    assert _invalid(p) == [
+        (False, False, False),
+        (True, False, False),
+        (False, False, True),
+        (False, True, False),
+    ]
     assert p.accel[1].tolist() == [-32768, -32768, -32768]  # counts still decoded
+    assert p.gyro[1].tolist() == P3_A_GYRO  # the other sensor of that packet is kept
     assert p.gyro[3].tolist() == [-32768, -32768, -32768]
+    assert p.accel[3].tolist() == P3_A_ACCEL
+    assert p.accel[2].tolist() == P3_B_ACCEL and p.gyro[2].tolist() == P3_B_GYRO
+    assert p.timestamp.tolist() == [P3_A_TS, P3_A_TS, P3_B_TS, P3_A_TS]
 
 
 # --- packet 4 (20 bytes, hires) ------------------------------------------------------------------
@@ -239,7 +286,7 @@ def test_decode_one_packet4() -> None:
     assert p.gyro.tolist() == [P4_A_GYRO]
     assert p.temperature_c[0] == pytest.approx(P4_A_TEMP, abs=1e-9)  # about 44.99 degC
     assert p.timestamp.tolist() == [P4_A_TS]
-    assert p.valid.tolist() == [True]
+    assert _invalid(p) == [(False, False, False)]
 
 
 def test_packet4_sign_extension_and_nibbles() -> None:
@@ -248,7 +295,7 @@ def test_packet4_sign_extension_and_nibbles() -> None:
     assert p.gyro.tolist() == [P4_B_GYRO]
     assert p.temperature_c[0] == pytest.approx(P4_B_TEMP, abs=1e-9)  # about 18.66 degC
     assert p.timestamp.tolist() == [P4_B_TS]
-    assert p.valid.tolist() == [True]
+    assert _invalid(p) == [(False, False, False)]  # gyro x alone at -524288 is a reading
 
 
 def test_packet4_values_span_20_bits() -> None:
@@ -266,23 +313,32 @@ def test_several_packet4_then_partial_then_empty() -> None:
 
 
 @pytest.mark.parametrize(
-    ("packet", "valid"),
+    ("packet", "accel_bad", "gyro_bad"),
     [
-        (P4_A[:1] + MARKER20 + P4_A[7:17] + bytes([0x0F, 0x0E, 0x0F]), False),  # accel -524288
-        (P4_A[:7] + MARKER20 + P4_A[13:17] + bytes([0xF0, 0xF0, 0x50]), False),  # gyro -524288
+        (P4_A[:1] + MARKER20 + P4_A[7:17] + bytes([0x0F, 0x0E, 0x0F]), True, False),  # accel
+        (P4_A[:7] + MARKER20 + P4_A[13:17] + bytes([0xF0, 0xF0, 0x50]), False, True),  # gyro
         # bits [19:4] look like the marker but accel x's nibble is 1: -524287, a real value
-        (P4_A[:1] + MARKER20 + P4_A[7:17] + bytes([0x1F, 0x0E, 0x0F]), True),
-        (bytes([0x68]) + P4_A[1:], False),  # no HEADER_20: not new 20-bit data
-        (bytes([0x38]) + P4_A[1:], False),  # no ACCEL
-        (bytes([0x58]) + P4_A[1:], False),  # no GYRO
-        (P4_A, True),
+        (P4_A[:1] + MARKER20 + P4_A[7:17] + bytes([0x1F, 0x0E, 0x0F]), False, False),
+        (bytes([0x68]) + P4_A[1:], True, True),  # no HEADER_20: no new 20-bit data at all
+        (bytes([0x38]) + P4_A[1:], True, False),  # no ACCEL
+        (bytes([0x58]) + P4_A[1:], False, True),  # no GYRO
+        (P4_A, False, False),
     ],
-)
-def test_packet4_validity(packet: bytes, valid: bool) -> None:
+)  # fmt: skip
+def test_packet4_validity_per_sensor(packet: bytes, accel_bad: bool, gyro_bad: bool) -> None:
     assert len(packet) == 20
     p = decode_packets(packet, hires=True)
     assert p.n == 1
-    assert p.valid.tolist() == [valid]
+    # the int16 temperature (2648) is valid whatever the motion sensors say
+    assert _invalid(p) == [(accel_bad, gyro_bad, False)]
+
+
+def test_packet4_16_bit_marker_is_a_reading() -> None:
+    # bits [19:4] = 0xF800 with nibble 0 on every axis: -32768 in 20 bits, not the marker
+    m16 = bytes([0xF8, 0x00] * 3)
+    p = decode_packets(P4_A[:1] + m16 + m16 + P4_A[13:17] + bytes(3), hires=True)
+    assert p.accel.tolist() == [[-32768] * 3] and p.gyro.tolist() == [[-32768] * 3]
+    assert _invalid(p) == [(False, False, False)]
 
 
 def test_packet4_marker_decodes_to_minus_524288() -> None:
@@ -290,7 +346,25 @@ def test_packet4_marker_decodes_to_minus_524288() -> None:
     p = decode_packets(packet, hires=True)
     assert p.accel.tolist() == [[-524288] * 3]
     assert p.gyro.tolist() == [[-524288] * 3]
-    assert p.valid.tolist() == [False]
+    assert _invalid(p) == [(True, True, False)]
+
+
+@pytest.mark.parametrize(
+    ("raw16", "celsius"),
+    [
+        (-32768, None),  # 0x8000: no temperature (TDK INVALID_VALUE_FIFO, PX4)
+        (-128, -128 / 132.48 + 25.0),  # the int8 marker means nothing in an int16 field
+        (-32767, -32767 / 132.48 + 25.0),
+        (0, 25.0),
+    ],
+)
+def test_packet4_temperature_invalid_only_at_minus_32768(raw16: int, celsius: float | None) -> None:
+    packet = P4_A[:13] + (raw16 & 0xFFFF).to_bytes(2, "big") + P4_A[15:]
+    p = decode_packets(packet, hires=True)
+    assert _invalid(p) == [(False, False, celsius is None)]
+    if celsius is not None:
+        assert p.temperature_c[0] == pytest.approx(celsius, abs=1e-9)
+    assert p.accel.tolist() == [P4_A_ACCEL] and p.gyro.tolist() == [P4_A_GYRO]
 
 
 # --- scale factors -------------------------------------------------------------------------------
@@ -393,6 +467,9 @@ class RecordingChip:
         self.log.append((self.clock.now_ns(), "w", register, bytes(data)))
         self.sim.write(register, data)
 
+    def spi_select(self) -> bool:
+        return self.sim.spi_select()
+
     def drain_truth(self) -> dict[str, Any] | None:
         return self.sim.drain_truth()
 
@@ -428,9 +505,11 @@ PLAN_CASES: list[tuple[dict[str, Any], dict[int, int], dict[int, int], dict[int,
             GYRO_ACCEL_CONFIG0: 0x44,
             FIFO_CONFIG1: 0x07,  # ACCEL | GYRO | TEMP
         },
-        # 258 Hz row: DELT 6, DELTSQR 36, BITSHIFT 10; STATIC2 0: AAF (and notch) on
+        # 258 Hz row: DELT 6, DELTSQR 36, BITSHIFT 10. STATIC2: bits 7 and 5 are undocumented
+        # and set at reset (0xA0), so they stay; GYRO_AAF_DIS (bit 1) 0: AAF on; the notch
+        # (GYRO_NF_DIS, bit 0) is not ours and stays on, as at reset
         {
-            GYRO_CONFIG_STATIC2: 0x00,
+            GYRO_CONFIG_STATIC2: 0xA0,
             GYRO_CONFIG_STATIC3: 6,
             GYRO_CONFIG_STATIC4: 36,
             GYRO_CONFIG_STATIC5: 0xA0,
@@ -486,6 +565,8 @@ def test_register_plan(
     assert b0[INTF_CONFIG1] == 0x51  # AFSR 0b01 (adaptive full scale off), PLL clock
     assert b0[TMST_CONFIG] & 0x01  # TMST_EN
     assert not b0[TMST_CONFIG] & 0x04  # not delta mode: an absolute counter mod 2^16
+    # reset 0x23: reserved bit 5 kept, FSYNC time-stamping (bit 1) off, 1 us ticks (bit 3 clear)
+    assert b0[TMST_CONFIG] == 0x21
     assert sim.bank == 0  # bank select left at 0
 
 
@@ -532,10 +613,22 @@ def test_started_chip_delivers_valid_packets_at_1g() -> None:
     clock.advance(20_000_000)  # 20 ms at 1 kHz: about 20 packets
     batch = driver.read()
     assert 15 <= batch.n <= 25
-    assert batch.valid is None or bool(batch.valid.all())
-    assert np.all(np.abs(batch.accel[:, 2] - 8192) < 800)
-    assert batch.accel_scale == pytest.approx(4 * G / 32768)
-    assert batch.chip_ticks is not None and batch.ticks_modulo == 1 << 16
+    acc, gyr = batch.channels[Channel.ACCEL], batch.channels[Channel.GYRO]
+    temp = batch.channels[Channel.TEMPERATURE]
+    # started after the gyro's start-up: every sensor of every packet holds data
+    assert acc.invalid is None and gyr.invalid is None and temp.invalid is None
+    assert np.all(np.abs(acc.data[:, 2] - 8192) < 800)
+    assert acc.scale == pytest.approx(4 * G / 32768)
+    assert gyr.scale == pytest.approx(math.radians(2000) / 32768)  # default 2000 deg/s
+    assert acc.full_scale == gyr.full_scale == 32767
+    assert temp.data.tolist() == pytest.approx([25.0] * batch.n, abs=0.5)  # int8, 2.07 LSB/C
+    assert isinstance(batch.timing, FifoRead)
+    counter = batch.timing.counter
+    assert counter is not None and counter.modulo == 1 << 16  # the 16-bit FIFO timestamp
+    assert counter.values.shape == (batch.n,)
+    # consecutive packets 1 ms apart: 937.5 ticks of 32/30 us (docs/chips/icm42688p.md 3.3)
+    steps = np.diff(counter.values) % (1 << 16)
+    assert np.all((steps == 937) | (steps == 938))
 
 
 def test_started_chip_hires_counts_at_1g() -> None:
@@ -544,9 +637,139 @@ def test_started_chip_hires_counts_at_1g() -> None:
     clock.advance(20_000_000)
     batch = driver.read()
     assert batch.n > 10
-    assert np.all(np.abs(batch.accel[:, 2] - 32768) < 3300)
-    assert batch.accel_scale == pytest.approx(16 * G / 2**19)
-    assert batch.gyro_scale == pytest.approx(math.radians(2000) / 2**19)
+    acc, gyr = batch.channels[Channel.ACCEL], batch.channels[Channel.GYRO]
+    assert acc.invalid is None and gyr.invalid is None
+    assert np.all(np.abs(acc.data[:, 2] - 32768) < 3300)
+    assert np.all(acc.data % 4 == 0)  # 18-bit effective accel: the low two bits read 0
+    assert acc.scale == pytest.approx(16 * G / 2**19)
+    assert gyr.scale == pytest.approx(math.radians(2000) / 2**19)
+    assert acc.full_scale == gyr.full_scale == 2**19 - 1
+
+
+def test_start_up_marks_each_sensor_invalid_on_its_own() -> None:
+    """Sensors just turned on deliver the invalid marker until their start-up time is over;
+    the accel starts sooner than the gyro, so for a while a packet has accel data and no gyro
+    data. Each sensor's mask says so, and the packets with neither count as invalid packets."""
+    odr = 1000.0
+    sim, driver, clock = started(make_cfg({"odr_hz": odr}))
+    driver.read()  # drain what came since the start
+    sim.advance()
+    sim.on_since_ns = clock.now_ns()  # both sensors restart now (as after a glitch)
+    clock.advance(int(1.5 * GYRO_STARTUP_NS))
+    batch = driver.read()
+    acc, gyr = batch.channels[Channel.ACCEL], batch.channels[Channel.GYRO]
+    temp = batch.channels[Channel.TEMPERATURE]
+    assert acc.invalid is not None and gyr.invalid is not None
+    n_acc, n_gyr = int(acc.invalid.sum()), int(gyr.invalid.sum())
+    # the simulated start-up times at 1 kHz, give or take the sample grid's phase
+    assert abs(n_acc - ACCEL_STARTUP_NS * odr / 1e9) <= 1
+    assert abs(n_gyr - GYRO_STARTUP_NS * odr / 1e9) <= 1
+    # the first packets after the restart, not scattered ones
+    assert acc.invalid.tolist() == [True] * n_acc + [False] * (batch.n - n_acc)
+    assert gyr.invalid.tolist() == [True] * n_gyr + [False] * (batch.n - n_gyr)
+    # packets with accel data and no gyro data: the accel reads 1 g (2048 LSB/g at 16 g)
+    only_gyro_bad = gyr.invalid & ~acc.invalid
+    assert only_gyro_bad.sum() == n_gyr - n_acc > 0
+    assert np.all(np.abs(acc.data[only_gyro_bad, 2] - 2048) < 200)
+    assert np.all(gyr.data[only_gyro_bad] == -32768)  # the marker, masked, not data
+    assert temp.invalid is None  # the temperature sensor did not restart
+    assert driver.invalid_packets == n_acc  # no motion data at all in those
+
+
+def test_plan_rechecks_every_configured_register_of_every_bank() -> None:
+    _, driver, _ = started(make_cfg())
+    checked = {(s.bank, s.register) for s in driver.plan.settings}
+    bank0 = (INTF_CONFIG0, INTF_CONFIG1, FIFO_CONFIG, FIFO_CONFIG1, PWR_MGMT0, GYRO_CONFIG0,
+             ACCEL_CONFIG0, GYRO_ACCEL_CONFIG0, TMST_CONFIG)  # fmt: skip
+    assert {(0, r) for r in bank0} <= checked
+    gyro_aaf = (GYRO_CONFIG_STATIC2, GYRO_CONFIG_STATIC3, GYRO_CONFIG_STATIC4, GYRO_CONFIG_STATIC5)
+    assert {(1, r) for r in gyro_aaf} <= checked
+    accel_aaf = (ACCEL_CONFIG_STATIC2, ACCEL_CONFIG_STATIC3, ACCEL_CONFIG_STATIC4)
+    assert {(2, r) for r in accel_aaf} <= checked
+
+
+@pytest.mark.parametrize(
+    ("bank", "register", "corrupt", "where"),
+    [
+        (1, GYRO_CONFIG_STATIC3, 6, "bank 1 register 0x0c"),  # gyro AAF DELT 13 -> 6
+        (1, GYRO_CONFIG_STATIC2, 0xA2, "bank 1 register 0x0b"),  # GYRO_AAF_DIS set
+        (2, ACCEL_CONFIG_STATIC4, 0x80, "bank 2 register 0x05"),  # accel AAF BITSHIFT 6 -> 8
+    ],
+)
+def test_corrupted_aaf_register_is_detected_by_the_periodic_check(
+    bank: int, register: int, corrupt: int, where: str
+) -> None:
+    """One configured register is re-checked every 100 ms, round robin over all banks: a
+    corrupted anti-alias filter register in bank 1 or 2 is found within one round."""
+    sim, driver, clock = started(make_cfg())
+    rounds = len(driver.plan.settings)
+    for _ in range(rounds + 2):  # a whole clean round first: no false alarm
+        clock.advance(100_000_001)
+        driver.read()
+    assert driver.counters.bad_registers == 0
+    sim.banks[bank][register] = corrupt  # behind the driver's back
+    with pytest.raises(RegisterMismatch) as info:
+        for _ in range(rounds + 1):
+            clock.advance(100_000_001)
+            driver.read()
+    assert where in str(info.value)
+    assert driver.counters.bad_registers == 1
+    assert sim.bank == 0  # bank 0 selected again: the FIFO reads that follow still work
+
+
+class HoldsReservedBits:
+    """A chip whose registers hold bits imud does not configure (reserved, or reset values of
+    fields not ours) from its soft reset on: the simulator plus bits OR-ed in at reset."""
+
+    def __init__(self, sim: Icm42688pSim, held: dict[tuple[int, int], int]) -> None:
+        self.sim, self.held = sim, held
+
+    def read(self, register: int, length: int) -> bytes:
+        return self.sim.read(register, length)
+
+    def write(self, register: int, data: bytes) -> None:
+        reset = register == 0x11 and self.sim.bank == 0 and data[0] & 0x01  # SOFT_RESET_CONFIG
+        self.sim.write(register, data)
+        if reset:
+            for (bank, reg), bits in self.held.items():
+                self.sim.banks[bank][reg] |= bits
+
+    def spi_select(self) -> bool:
+        return self.sim.spi_select()
+
+    def drain_truth(self) -> Any:
+        return self.sim.drain_truth()
+
+
+def test_reserved_bits_the_chip_holds_survive_configuration() -> None:
+    """Configuration is read-modify-write: bits outside imud's fields keep what the chip holds,
+    and the periodic check does not take them for a corrupted register."""
+    held = {
+        (0, GYRO_CONFIG0): 0x10,  # bit 4: between FS_SEL [7:5] and ODR [3:0]
+        (0, ACCEL_CONFIG0): 0x10,
+        (0, PWR_MGMT0): 0xC0,  # above TEMP_DIS (5), IDLE (4) and the two mode fields
+        (1, GYRO_CONFIG_STATIC3): 0xC0,  # above GYRO_AAF_DELT [5:0]
+        (2, ACCEL_CONFIG_STATIC2): 0x80,  # above ACCEL_AAF_DELT [6:1]
+    }
+    cfg = make_cfg()  # 2000 deg/s, 16 g, 1 kHz, UI filter ODR/4, AAF rows 585 / 1163 Hz
+    clock = VirtualClock()
+    assert cfg.sim is not None
+    sim = Icm42688pSim(cfg.sim, clock)
+    driver = Icm42688pDriver(cfg, SpiDevice(SimSpiDev(HoldsReservedBits(sim, held))), clock)
+    start_blocking(driver, clock)
+    b0, b1, b2 = sim.banks[0], sim.banks[1], sim.banks[2]
+    assert b0[GYRO_CONFIG0] == 0x10 | 0x06  # FS_SEL 0 (2000 deg/s), ODR code 6 (1 kHz)
+    assert b0[ACCEL_CONFIG0] == 0x10 | 0x06  # FS_SEL 0 (16 g), ODR code 6
+    assert b0[PWR_MGMT0] == 0xC0 | 0x0F  # gyro and accel low-noise
+    assert b1[GYRO_CONFIG_STATIC3] == 0xC0 | 13  # 585 Hz row: DELT 13
+    assert b2[ACCEL_CONFIG_STATIC2] == 0x80 | 24 << 1  # 1163 Hz row: DELT 24, AAF on
+    # and the undocumented bits set at reset (docs/chips/icm42688p.md, Status)
+    assert b0[TMST_CONFIG] & 0x20 and b0[INTF_CONFIG1] & 0x10
+    assert b1[GYRO_CONFIG_STATIC2] & 0xA0 == 0xA0
+    for _ in range(len(driver.plan.settings) + 2):  # a whole round of the periodic check
+        clock.advance(100_000_001)
+        assert driver.read().n > 0
+    assert driver.counters.bad_registers == 0
 
 
 def test_wrong_who_am_i_raises_identity_error() -> None:

@@ -2,7 +2,7 @@
 
 Byte vectors are written out by hand from the register map (big-endian int16, FIFO set = accel
 X,Y,Z then gyro X,Y,Z, INT_STATUS..TEMP_OUT_L from 0x3A); nothing here is produced by an encoder
-from the code under test. Facts: /work/shared/reference/chips-invensense-bosch.md section 1.
+from the code under test. Facts: docs/chips/mpu6050.md.
 """
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ import pytest
 
 from imud.buses.i2c import I2CDevice
 from imud.buses.models import SimBus
-from imud.chips.api import start_blocking
+from imud.channels import Channel
+from imud.chips.api import FifoRead, start_blocking
 from imud.chips.mpu6050.config import Mpu6050Config
 from imud.chips.mpu6050.driver import (
     Mpu6050Driver,
@@ -24,10 +25,10 @@ from imud.chips.mpu6050.driver import (
     gyro_scale_rads,
     temperature_c,
 )
-from imud.clock import VirtualClock
-from imud.errors import BusError, DeviceIdentityError
-from imud.sim.i2c import SimI2CBus
 from imud.chips.mpu6050.sim import Mpu6050Sim
+from imud.clock import VirtualClock
+from imud.errors import BusError, DeviceIdentityError, RegisterMismatch
+from imud.sim.i2c import SimI2CBus
 from imud.sim.settings import SimSettings
 
 G = 9.80665  # standard gravity, m/s^2
@@ -254,11 +255,76 @@ def test_started_chip_fills_fifo_with_12_byte_sets() -> None:
     clock.advance(20_000_000)  # 20 ms at 500 Hz: about 10 samples
     batch = driver.read()
     assert 8 <= batch.n <= 12
-    assert batch.accel.shape == (batch.n, 3)
+    acc = batch.channels[Channel.ACCEL]
+    gyr = batch.channels[Channel.GYRO]
+    assert acc.data.shape == (batch.n, 3) and gyr.data.shape == (batch.n, 3)
     # still and level, +-4 g: z near +1 g (8192 counts), x and y near 0
-    assert np.all(np.abs(batch.accel[:, 2] - 8192) < 800)
-    assert np.all(np.abs(batch.accel[:, :2]) < 800)
-    assert batch.accel_scale == pytest.approx(4 * G / 32768)
+    assert np.all(np.abs(acc.data[:, 2] - 8192) < 800)
+    assert np.all(np.abs(acc.data[:, :2]) < 800)
+    assert acc.scale == pytest.approx(4 * G / 32768)  # 8192 LSB/g
+    assert gyr.scale == pytest.approx(math.radians(1) / 65.536)  # +-500 dps: 65.536 LSB/(deg/s)
+    # no invalid marker in an MPU6050 FIFO (docs/chips/mpu6050.md, FIFO): nothing is masked
+    assert acc.invalid is None and gyr.invalid is None
+    # an int16 reading saturates at +-32767 counts
+    assert acc.full_scale == 32767 and gyr.full_scale == 32767
+    # host-time brackets of the count read, for the sample-clock fit; the first read after the
+    # start continues from the FIFO the start sequence enabled
+    assert isinstance(batch.timing, FifoRead)
+    assert batch.timing.t_before_ns <= batch.timing.t_after_ns <= clock.now_ns()
+    temp = batch.channels[Channel.TEMPERATURE].data
+    assert temp.shape == (batch.n,)
+    assert np.all(np.abs(temp - 25.0) < 1.0)  # the simulator's default 25 degC, 1/340 degC LSB
+
+
+class HoldsReservedBits:
+    """An MPU6050 whose registers hold bits imud does not configure from its reset on."""
+
+    def __init__(self, sim: Mpu6050Sim, held: dict[int, int]) -> None:
+        self.sim, self.held = sim, held
+
+    def read(self, register: int, length: int) -> bytes:
+        return self.sim.read(register, length)
+
+    def write(self, register: int, data: bytes) -> None:
+        self.sim.write(register, data)
+        if register == PWR_MGMT_1 and data[0] & 0x80:  # DEVICE_RESET
+            for reg, bits in self.held.items():
+                self.sim.regs[reg] |= bits
+
+    def spi_select(self) -> bool:
+        return True
+
+
+def test_register_plan_keeps_bits_it_does_not_own() -> None:
+    """Configuration is read-modify-write: reserved bits keep what the chip holds, and the
+    periodic check does not take them for a corrupted register."""
+    held = {
+        GYRO_CONFIG: 0x04,  # [2:0] reserved
+        CONFIG: 0x80,  # bit 7: above EXT_SYNC_SET [5:3] and bit 6
+        PWR_MGMT_1: 0x10,  # bit 4 reserved
+    }
+    cfg = make_cfg({"gyro_range_dps": 500, "accel_range_g": 4, "dlpf_hz": 188, "odr_hz": 1000})
+    clock = VirtualClock()
+    bus = SimI2CBus(seed=1)
+    sim = Mpu6050Sim(SimSettings(seed=1), clock)
+    bus.attach(0x68, HoldsReservedBits(sim, held))
+    driver = Mpu6050Driver(cfg, I2CDevice(bus, 0x68), clock)
+    start_blocking(driver, clock)
+    assert sim.regs[GYRO_CONFIG] == 0x04 | 0x08  # FS_SEL 1 (500 deg/s)
+    assert sim.regs[CONFIG] == 0x80 | 1  # DLPF_CFG 1 (188 Hz)
+    assert sim.regs[PWR_MGMT_1] == 0x10 | 0x01  # awake, PLL with the X gyro
+    rounds = len(driver.plan.settings) + 2  # a whole round of the periodic check, 100 ms each
+    for _ in range(2 * rounds):  # polls 50 ms apart: 600 bytes, the FIFO never overflows
+        clock.advance(50_000_000)
+        assert driver.read().n > 0
+    assert driver.counters.bad_registers == 0 and driver.counters.fifo_overflows == 0
+    # while a configured bit that changed is noticed within a round
+    sim.regs[GYRO_CONFIG] ^= 0x18  # FS_SEL 1 -> 2
+    with pytest.raises(RegisterMismatch, match="0x1b"):
+        for _ in range(2 * rounds):
+            clock.advance(50_000_000)
+            driver.read()
+    assert driver.counters.bad_registers == 1
 
 
 def test_wrong_who_am_i_raises_identity_error() -> None:

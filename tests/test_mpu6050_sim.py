@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from imud.channels import SampleFlag
 from imud.chips.mpu6050.registers import Register as reg
 from tests.helpers import concat, make_rig, match_truth
 
@@ -27,8 +28,8 @@ def test_rate_continuity_and_chip_clock(clock_error: float) -> None:
     assert np.all(np.diff(m["seq"]) == 1) and m["seq"][0] == 0
     assert np.all(np.diff(m["t_ns"]) > 0)
     true_rate = 1000.0 * (1 + clock_error)
-    assert rig.runner._sclock is not None
-    assert rig.runner._sclock.rate_hz == pytest.approx(true_rate, rel=2e-4)
+    assert rig.runner.pipeline is not None
+    assert rig.runner.pipeline.clock.rate_hz == pytest.approx(true_rate, rel=2e-4)
     # every sample the chip produced after the first read is delivered
     assert len(m["seq"]) == pytest.approx(10.0 * true_rate, abs=0.15 * true_rate)
 
@@ -157,6 +158,11 @@ def test_gyro_saturates_at_full_scale() -> None:
     rig.run(1.0)
     m = concat(rig.batches())
     assert m["gyro"][:, 2].max() == pytest.approx(math.radians(250) * 32767 / 32768, rel=1e-6)
+    # every sample's z rate (400 deg/s) is past the range: each one says so; the accel is not
+    flags = m["flags"].astype(np.int64)
+    assert np.all(flags & SampleFlag.GYRO_SATURATED)
+    assert not np.any(flags & SampleFlag.ACCEL_SATURATED)
+    assert not np.any(flags & 0xFFFF)  # saturated is not invalid: the values are published
 
 
 def test_temperature_ramp_is_reported() -> None:

@@ -1,8 +1,9 @@
-"""Accel samples aligned to gyro times (imud.pairing), from hand-made timelines."""
+"""Accel samples aligned to gyro times (imud.chips.bmi088.pairing), from hand-made timelines."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from imud.chips.bmi088.pairing import DiePairer
 
@@ -46,13 +47,17 @@ def test_gyro_newer_than_the_newest_accel_waits_for_the_next_one() -> None:
     np.testing.assert_allclose(out.accel[:, 0], [1100])
 
 
-def test_gyro_between_non_consecutive_accel_samples_is_a_hole() -> None:
+def test_gyro_between_non_consecutive_accel_samples_has_no_accel_value() -> None:
     p = DiePairer()
     _accel(p, [0, 1, 5, 6], [0, 625_000, 3_125_000, 3_750_000])  # accel 2..4 lost
     _gyro(p, 0, [500_000, 1_000_000, 2_000_000, 3_500_000])
     out = p.take()
     assert out is not None
+    # every gyro sample is emitted (the gyro measured it), the two in the accel gap without
+    # an accel value
+    assert out.n == 4 and out.first_seq == 0 and out.lost_before == 0
     assert out.valid.tolist() == [True, False, False, True]
+    np.testing.assert_allclose(out.accel[[0, 3], 0], [500, 3500], atol=1e-9)
 
 
 def test_a_gyro_gap_ends_the_batch_and_the_next_one_counts_it() -> None:
@@ -81,7 +86,8 @@ def test_gyro_does_not_wait_forever_when_the_accel_die_stops() -> None:
     assert p.take() is not None
     _gyro(p, 1, [1_000_000 + i * 500_000 for i in range(200)])  # 100 ms, no accel
     out = p.take()
-    assert out is not None and not out.valid.any()  # emitted as holes, counted by the runner
+    assert out is not None and not out.valid.any()  # emitted with no accel value
+    assert out.first_seq == 1 and out.lost_before == 0
     assert p.pending < 200
 
 
@@ -95,3 +101,29 @@ def test_reset_drops_pending_gyro_and_the_next_batch_counts_them() -> None:
     _gyro(p, 10, [5_500_000])
     out = p.take()
     assert out is not None and out.first_seq == 10 and out.lost_before == 9
+
+
+@pytest.mark.parametrize("new_accel_seq", [10, 2])
+def test_restart_keeps_gyro_samples_already_read_without_an_accel_value(
+    new_accel_seq: int,
+) -> None:
+    """A reinitialised chip: the gyro samples read before it are measurements all the same.
+    Those no accel sample read before the restart brackets come out with no accel value; the
+    accel history starts again, so nothing is interpolated across the restart, even when the
+    new accel samples' seq happens to follow the old ones' (seq 2 after 1)."""
+    p = DiePairer()
+    _accel(p, [0, 1], [0, 625_000])
+    _gyro(p, 0, [500_000, 1_000_000, 1_500_000])
+    first = p.take()
+    assert first is not None and first.n == 1 and p.pending == 2  # 1.0, 1.5 ms wait for accel
+    p.restart()
+    _accel(p, [new_accel_seq, new_accel_seq + 1], [5_000_000, 5_625_000])
+    _gyro(p, 10, [5_500_000])  # the gyro's seq counted on across the restart: 3..9 lost
+    kept = p.take()
+    assert kept is not None and kept.first_seq == 1 and kept.lost_before == 0 and kept.n == 2
+    assert not kept.valid.any()
+    np.testing.assert_array_equal(kept.t_ns, [1_000_000, 1_500_000])
+    after = p.take()
+    assert after is not None and after.first_seq == 10 and after.lost_before == 7
+    assert after.valid.all()
+    np.testing.assert_allclose(after.accel[:, 0], [5500], atol=1e-9)
