@@ -16,15 +16,18 @@ import zenoh
 
 from imud.config import DEFAULT_ENDPOINT
 from imud.wire import KIND_SAMPLES, KIND_TRUTH, Batch, WireError, decode
+from imud.zerrors import clean, endpoint_problem
 from imud.zsession import client_config
 
 __all__ = [
     "KIND_SAMPLES",
     "KIND_TRUTH",
+    "BadEndpoint",
     "Batch",
     "NoDaemon",
     "WireError",
     "batches",
+    "data_key",
     "decode",
     "get_status",
     "open_session",
@@ -32,27 +35,49 @@ __all__ = [
 
 
 class NoDaemon(ConnectionError):
-    pass
+    """Nothing answers: no Zenoh peer at the endpoint, or no daemon behind it."""
+
+
+class BadEndpoint(ValueError):
+    """The endpoint string is malformed (a usage error, not an unreachable daemon)."""
 
 
 def open_session(endpoint: str = DEFAULT_ENDPOINT) -> zenoh.Session:
     """A client session to one daemon, with multicast scouting disabled (`client_config`): it talks
-    to the given endpoint only. Raises `NoDaemon` if nothing listens there."""
+    to the given endpoint only. Raises `BadEndpoint` for a malformed endpoint (checked first, so
+    `foo` or port 99999 is not reported as an absent daemon) and `NoDaemon` if nothing listens
+    there."""
+    problem = endpoint_problem(endpoint)
+    if problem:
+        raise BadEndpoint(problem)
     try:
         return zenoh.open(client_config(endpoint))
     except zenoh.ZError as e:
-        raise NoDaemon(f"no imud daemon reachable at {endpoint}: {e}") from None
+        reason = clean(str(e))
+        # "Unable to connect to any of [Single(tcp/...)]!" only repeats the endpoint
+        detail = "" if reason.startswith("Unable to connect") else f" ({reason})"
+        raise NoDaemon(f"no imud daemon reachable at {endpoint}{detail}") from None
 
 
 def get_status(
     session: zenoh.Session, prefix: str = "imud", device: str | None = None, timeout: float = 2.0
 ) -> dict[str, Any]:
+    """The daemon's status (or one device's) as JSON. Raises `NoDaemon` when nothing answers
+    within `timeout` seconds (a Zenoh peer without an imud daemon, or another `prefix`)."""
     key = f"{prefix}/{device or 'daemon'}/status"
-    for reply in session.get(key, timeout=timeout):
-        if reply.ok is not None:
-            parsed: dict[str, Any] = json.loads(reply.ok.payload.to_string())
-            return parsed
+    try:
+        for reply in session.get(key, timeout=timeout):
+            if reply.ok is not None:
+                parsed: dict[str, Any] = json.loads(reply.ok.payload.to_string())
+                return parsed
+    except zenoh.ZError as e:
+        raise NoDaemon(f"asking {key} failed: {clean(str(e))}") from None
     raise NoDaemon(f"no answer on {key} within {timeout:g} s")
+
+
+def data_key(device: str, prefix: str = "imud", truth: bool = False) -> str:
+    """Where a device's batches (or its simulator's ground truth) are published."""
+    return f"{prefix}/{device}/{'sim/truth' if truth else 'imu'}"
 
 
 def batches(
@@ -68,7 +93,7 @@ def batches(
 
     `depth` batches are queued for the caller (8 s of a 32 kHz stream): a Python consumer that
     pauses (GC, a slow print) must not push back on Zenoh, which would drop batches for it."""
-    key = f"{prefix}/{device}/{'sim/truth' if truth else 'imu'}"
+    key = data_key(device, prefix, truth)
     sub = session.declare_subscriber(key, zenoh.handlers.FifoChannel(depth))
     try:
         seen = 0

@@ -8,9 +8,12 @@ from typing import Any
 import zenoh
 
 from imud.config import DEFAULT_ENDPOINT, ZenohSettings
+from imud.zerrors import ZenohSetupError, clean
 
 
 def daemon_config(s: ZenohSettings) -> zenoh.Config:
+    """The daemon's session config. Raises `ZenohSetupError` naming an `options` entry Zenoh
+    refuses (`imud check-config` builds it too, so a bad entry is a config error)."""
     d: dict[str, Any] = {
         "mode": s.mode,
         "listen": {"endpoints": s.listen},
@@ -20,7 +23,14 @@ def daemon_config(s: ZenohSettings) -> zenoh.Config:
     }
     cfg = zenoh.Config.from_json5(json.dumps(d))
     for key, value in s.options.items():
-        cfg.insert_json5(key, json.dumps(value))
+        try:
+            cfg.insert_json5(key, json.dumps(value))
+        except zenoh.ZError as e:  # Zenoh says only 'Str("unknown key")'
+            why = clean(str(e)).removeprefix('Str("').removesuffix('")')
+            raise ZenohSetupError(
+                f"zenoh.options: {key!r} = {value!r}: Zenoh refuses it ({why}); keys are Zenoh "
+                "config paths like 'transport/unicast/qos/enabled'"
+            ) from None
     # the pass-through table must not switch multicast back on behind the user's back silently
     cfg.insert_json5("scouting/multicast/enabled", "false")
     return cfg

@@ -22,8 +22,37 @@ def imud(*args: str, cwd: Path = REPO) -> subprocess.CompletedProcess[str]:
     )
 
 
-def test_check_config_sim_toml() -> None:
+def test_check_config_prints_a_short_summary() -> None:
     r = imud("check-config", "configs/sim.toml")
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    lines = r.stdout.splitlines()
+    assert len(lines) == 7  # headline, daemon, zenoh, one per device
+    assert lines[0] == "configs/sim.toml: valid, 4 devices"
+    assert lines[1].startswith("daemon:") and "realtime priority 20" in lines[1]
+    assert lines[2].startswith("zenoh:") and "tcp/127.0.0.1:7447" in lines[2]
+    assert "peer" in lines[2] and "'imud'" in lines[2]
+    devices = {ln.split()[0]: ln for ln in lines[3:]}
+    assert list(devices) == ["imu0", "imu1", "icm0", "bmi0"]
+    imu0 = devices["imu0"].split()
+    assert imu0[:3] == ["imu0", "mpu6050", "sim-i2c:sim0@0x68"]  # hex, not 104
+    assert "1000 Hz" in devices["imu0"] and "gyro ±500 °/s" in devices["imu0"]
+    assert "accel ±4 g" in devices["imu0"] and "sim (still, truth on)" in devices["imu0"]
+    assert "@0x69" in devices["imu1"] and "500 Hz" in devices["imu1"]
+    assert "32000 Hz" in devices["icm0"] and "truth" not in devices["icm0"]
+    assert "sim-spi:spi1@cs0 + sim-spi:spi1@cs1" in devices["bmi0"]
+    assert "{" not in r.stdout
+
+
+def test_check_config_summary_of_real_hardware() -> None:
+    r = imud("check-config", "configs/pixhawk-bmi088-spi.toml")
+    assert r.returncode == 0, r.stderr
+    device = r.stdout.splitlines()[-1]
+    assert "spi:/dev/spidev1.0 + spi:/dev/spidev1.1" in device and device.endswith("hardware")
+
+
+def test_check_config_json_is_the_full_model() -> None:
+    r = imud("check-config", "--json", "configs/sim.toml")
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout)
     assert [d["name"] for d in doc["device"]] == ["imu0", "imu1", "icm0", "bmi0"]
@@ -43,7 +72,7 @@ def test_check_config_prints_resolved_calibration_path(tmp_path: Path) -> None:
         '[[device]]\nname = "imu0"\nchip = "mpu6050"\nbus = { kind = "sim" }\n'
         'calibration = "imu.cal.toml"\n'
     )
-    r = imud("check-config", "etc/imud.toml", cwd=tmp_path)
+    r = imud("check-config", "--json", "etc/imud.toml", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     cal = json.loads(r.stdout)["device"][0]["calibration"]
     assert Path(cal) == (tmp_path / "etc" / "imu.cal.toml").resolve()
@@ -104,3 +133,17 @@ def test_check_config_binary_file_no_traceback(tmp_path: Path) -> None:
     r = imud("check-config", str(bad))
     assert "Traceback" not in r.stderr
     assert r.returncode == 2
+
+
+def test_check_config_suggests_the_right_names(tmp_path: Path) -> None:
+    bad = tmp_path / "typos.toml"
+    bad.write_text(
+        '[zenoh]\nlisten = ["tcp/127.0.0.1:70000"]\n'
+        '[[devices]]\nname = "imu0"\nchip = "mpu6050"\nbus = { kind = "sim" }\n'
+    )
+    r = imud("check-config", str(bad))
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr
+    problems = [ln.strip() for ln in r.stderr.splitlines()[1:]]
+    assert any(p.startswith("devices:") and "[[device]]" in p for p in problems), problems
+    assert any("zenoh.listen" in p and "70000" in p and "1-65535" in p for p in problems)

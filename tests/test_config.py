@@ -499,3 +499,90 @@ def test_device_named_daemon_is_reserved(tmp_path: Path) -> None:
 def test_every_shipped_config_validates(path: Path) -> None:
     cfg = load_config(path)
     assert cfg.device, path
+
+
+# --- "did you mean" and endpoint ports --------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("fragment", "where", "suggestion"),
+    [
+        ("odr_hx = 500\n", "device[1] 'imu1' (mpu6050): odr_hx", "'odr_hz'"),
+        (
+            "gyro_rnage_dps = 500\n",
+            "device[1] 'imu1' (mpu6050): gyro_rnage_dps",
+            "'gyro_range_dps'",
+        ),
+    ],
+)
+def test_unknown_device_field_gets_did_you_mean(
+    tmp_path: Path, fragment: str, where: str, suggestion: str
+) -> None:
+    msg = only_error(tmp_path, GOOD_DEVICE + mpu_device() + fragment)
+    assert msg.startswith(where + ": unknown field"), msg
+    assert f"did you mean {suggestion}?" in msg
+
+
+def test_unknown_nested_fields_get_did_you_mean_at_their_own_level(tmp_path: Path) -> None:
+    text = GOOD_DEVICE + (
+        '[[device]]\nname = "imu1"\nchip = "mpu6050"\n'
+        'bus = { kind = "sim", adress = 0x69 }\n'
+        "[device.sim]\ntruht = true\n"
+        'motion = { kind = "tumble", rate_dp = [1.0, 2.0, 3.0] }\n'
+        "[device.sim.errors]\nideall = true\n"
+    )
+    messages = errors_of(tmp_path, text)
+    assert len(messages) == 4, messages
+    want = {
+        "bus.adress": "'address'",  # the union tag ('sim') is not shown as a key
+        "sim.truht": "'truth'",
+        "sim.motion.rate_dp": "'rate_dps'",
+        "sim.errors.ideall": "'ideal'",
+    }
+    for field, suggestion in want.items():
+        line = f"device[1] 'imu1' (mpu6050): {field}: unknown field; did you mean {suggestion}?"
+        assert line in messages, messages
+
+
+def test_devices_table_gets_a_hint_to_write_device(tmp_path: Path) -> None:
+    messages = errors_of(tmp_path, GOOD_DEVICE.replace("[[device]]", "[[devices]]"))
+    assert any(m.startswith("devices: unknown field; did you mean [[device]]?") for m in messages)
+    assert any(m.startswith("device: missing") and "[[device]]" in m for m in messages)
+
+
+def test_misspelt_top_level_table_gets_did_you_mean(tmp_path: Path) -> None:
+    msg = only_error(tmp_path, "[deamon]\nbus_processes = false\n" + GOOD_DEVICE)
+    assert msg == "deamon: unknown field; did you mean [daemon]?"
+
+
+def test_unknown_field_far_from_any_name_lists_the_allowed_ones(tmp_path: Path) -> None:
+    msg = only_error(tmp_path, "[daemon]\nzzz = 1\n" + GOOD_DEVICE)
+    assert "daemon.zzz: unknown field" in msg
+    assert "bus_processes" in msg and "realtime_priority" in msg
+
+
+def test_unknown_chip_gets_did_you_mean(tmp_path: Path) -> None:
+    msg = only_error(tmp_path, GOOD_DEVICE + mpu_device().replace("mpu6050", "mpu6500"))
+    assert "did you mean 'mpu6050'?" in msg
+
+
+@pytest.mark.parametrize("key", ["listen", "connect"])
+@pytest.mark.parametrize(
+    ("endpoint", "says"),
+    [
+        ("tcp/127.0.0.1:99999", "port 99999 is out of range (1-65535)"),
+        ("tcp/127.0.0.1:0", "port 0 is out of range (1-65535)"),
+        ("udp/[::1]:65536", "port 65536 is out of range"),
+        ("tcp/127.0.0.1:http", "port 'http' is not a number"),
+        ("tcp/127.0.0.1", "needs HOST:PORT"),
+    ],
+)
+def test_endpoint_ports_checked(tmp_path: Path, key: str, endpoint: str, says: str) -> None:
+    msg = only_error(tmp_path, f'[zenoh]\n{key} = ["{endpoint}"]\n' + GOOD_DEVICE)
+    assert msg.startswith(f"zenoh.{key}: "), msg
+    assert repr(endpoint) in msg and says in msg
+
+
+def test_endpoint_port_bounds_accepted(tmp_path: Path) -> None:
+    text = '[zenoh]\nlisten = ["tcp/127.0.0.1:1", "tcp/127.0.0.1:65535?prio=1"]\n' + GOOD_DEVICE
+    assert load_text(tmp_path, text).zenoh.listen[1] == "tcp/127.0.0.1:65535?prio=1"
