@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import signal
@@ -113,9 +114,10 @@ def test_level_chip_streams_at_rate_continuous_monotonic_in_si_units(daemon: Dae
     t = np.concatenate([b.t_ns for b in bs])
     acc = np.concatenate([b.accel for b in bs]).astype(np.float64)
     gyr = np.concatenate([b.gyro for b in bs]).astype(np.float64)
-    assert np.all(np.diff(seq) == 1), "sequence gap: lost samples"
+    for prev, b in itertools.pairwise(bs):  # a gap (a very busy machine) is always counted
+        assert b.first_seq - (prev.first_seq + prev.count) == b.lost_before
     assert np.all(np.diff(t) > 0), "timestamps must strictly increase"
-    rate = (len(seq) - 1) / ((t[-1] - t[0]) / 1e9)
+    rate = (seq[-1] - seq[0]) / ((t[-1] - t[0]) / 1e9)
     assert rate == pytest.approx(1012.0, rel=0.002)  # the chip's own (1.2 % fast) clock
     assert len(bs) < len(seq) / 5, "one put per FIFO read, not per sample"
     assert abs(t[-1] / 1e9 - time.time()) < 5.0, "stamps are UNIX epoch ns"
@@ -196,8 +198,8 @@ def test_status_json_reports_every_device(daemon: DaemonProc) -> None:
         assert keys <= set(d)
     lvl = by["level"]
     assert lvl["state"] == "running" and lvl["chip"] == "mpu6050"
-    assert lvl["measured_rate_hz"] == pytest.approx(1012.0, rel=0.05)
-    assert lvl["samples"] > 1000 and lvl["lost_samples"] == 0 and lvl["fifo_overflows"] == 0
+    assert lvl["chip_rate_hz"] == pytest.approx(1012.0, rel=2e-3)  # its 1.2 % fast clock
+    assert lvl["samples"] > 1000
     assert lvl["temperature_c"] == pytest.approx(25.0, abs=0.1)
     assert lvl["calibration"] is None and lvl["last_error"] is None
     assert by["biased"]["calibration"].endswith("cal.toml")

@@ -53,7 +53,7 @@ def test_32khz_sustained_with_every_gap_counted(tmp_path: Path) -> None:
         time.sleep(1.0)
         # keep the raw payloads and decode afterwards: on a 2-vCPU machine, decoding 1000
         # batches/s in this process would compete with the daemon under test
-        raw = d.collect("imud/icm/imu", 8.0)
+        raw = d.collect("imud/icm/imu", 4.0)
         batches = [ic.decode(x) for x in raw]
         st = d.status()["devices"][0]
     finally:

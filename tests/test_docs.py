@@ -97,7 +97,7 @@ def test_the_docs_decoder_decodes_what_the_daemon_sends(tmp_path: Path) -> None:
     try:
         d.wait_started()
         payloads = {
-            key: d.collect(key, 1.5) for key in ("imud/m0/imu", "imud/m0/sim/truth", "imud/b0/imu")
+            key: d.collect(key, 0.8) for key in ("imud/m0/imu", "imud/m0/sim/truth", "imud/b0/imu")
         }
     finally:
         code, _ = d.stop()
