@@ -243,7 +243,8 @@ class DeviceRunner:
             self._note_loss(batch.lost_before, now)
         run_end = 0
         whole = batch.hole is None
-        for start, end in _runs(batch.hole, batch.n):
+        runs = ((0, batch.n),) if whole and batch.n else _runs(batch.hole, batch.n)
+        for start, end in runs:
             if start > run_end:  # samples with no valid data at all are holes: lost
                 self._note_loss(start - run_end, now)
             sf = batch.sample_flags

@@ -162,9 +162,8 @@ class Pipeline:
         return 1e9 / self.period_ns
 
     def process(self, raw: RawBatch) -> SampleBatch:
-        st = stamp(self.clock, raw)
-        if not isinstance(raw.timing, FifoRead):
-            st = self._continue(st)
+        t = raw.timing
+        st = stamp(self.clock, raw) if isinstance(t, FifoRead) else self._continue(t)
         if st.period_ns:
             self.period_ns = st.period_ns
         flags = sample_flags(raw)

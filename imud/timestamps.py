@@ -308,8 +308,10 @@ class SampleClock:
         elif not full or self._count == 0:
             self._observe(k_new, t_before, t_after, new_segment=resync)
         ks = np.arange(first, k_new + 1, dtype=np.float64)
-        t = np.rint(np.asarray(self._line(ks)) + self._correction()).astype(np.int64)
-        if self.last_ts is not None:  # strictly increasing across batches, whatever the fit did
+        t = np.rint(self._line(ks) + self._correction()).astype(np.int64)
+        # strictly increasing across batches, whatever the fit did (within a batch the line
+        # rises a period a sample, so only a first stamp not after the last can break it)
+        if self.last_ts is not None and t[0] <= self.last_ts:
             t = np.maximum(t, self.last_ts + 1 + np.arange(n, dtype=np.int64))
         self.last_ts = int(t[-1])
         self.k_last = k_new

@@ -26,6 +26,7 @@ HEADER = struct.Struct("<4sBBHQIIII")  # magic, version, kind, name_len, first_s
 #                                        flags, lost_before, channel mask
 assert HEADER.size == 32
 _KNOWN = sum(CHANNELS)
+_BIT_WIDTH = {c: (bit, width) for c, bit, width in ORDER}
 
 F32 = npt.NDArray[np.float32]
 
@@ -100,10 +101,9 @@ def encode(
     pad = (-len(name)) % 8
     mask = 0
     parts: list[bytes] = []
-    for ch, bit, width in ORDER:
-        values = channels.get(ch)
-        if values is None:
-            continue
+    for ch in sorted(channels):  # bit order
+        bit, width = _BIT_WIDTH[ch]
+        values = channels[ch]
         arr = np.ascontiguousarray(values, dtype="<f4")
         if arr.size != n * width:
             raise WireError(f"{CHANNELS[ch].key}: {arr.shape} values for {n} samples")
