@@ -95,3 +95,24 @@ def match_truth(meas: dict[str, np.ndarray], truth: dict[str, np.ndarray]) -> np
     tt = truth["t_ns"]
     i = np.clip(np.searchsorted(tt, meas["t_ns"]), 1, len(tt) - 1)
     return np.where(np.abs(tt[i] - meas["t_ns"]) < np.abs(tt[i - 1] - meas["t_ns"]), i, i - 1)
+
+
+def run_in_process(daemon: Any, drive: Any) -> None:
+    """Run `daemon` (an `imud.daemon.Daemon`) on this thread's event loop while `drive()` runs
+    in another thread; `drive` must end with `daemon.request_stop()`. Restores what the daemon
+    changes process-wide (the GIL switch interval, the frozen GC generation)."""
+    import gc
+    import sys
+    import threading
+
+    import anyio
+
+    switch = sys.getswitchinterval()
+    t = threading.Thread(target=drive)
+    t.start()
+    try:
+        assert anyio.run(daemon.run) == 0
+    finally:
+        t.join()
+        sys.setswitchinterval(switch)
+        gc.unfreeze()

@@ -236,19 +236,14 @@ def _wait_for(proc: subprocess.Popen[bytes], read: Any, want: int, seconds: floa
     return out
 
 
+def _watch(daemon: DaemonProc) -> list[str]:
+    return [sys.executable, "-m", "imud", "status", "--watch", "--interval", "0.3",
+            "--connect", daemon.endpoint]  # fmt: skip
+
+
 def test_status_watch_refreshes_until_sigint_in_a_pipe(daemon: DaemonProc) -> None:
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "imud",
-            "status",
-            "--watch",
-            "--interval",
-            "0.3",
-            "--connect",
-            daemon.endpoint,
-        ],
+        _watch(daemon),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
     )
@@ -271,17 +266,7 @@ def test_status_watch_in_a_terminal_fits_its_width_and_exits_0_on_ctrl_c(
     env = {k: v for k, v in os.environ.items() if k not in ("COLUMNS", "LINES")}
     env["TERM"] = "xterm"
     proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "imud",
-            "status",
-            "--watch",
-            "--interval",
-            "0.3",
-            "--connect",
-            daemon.endpoint,
-        ],
+        _watch(daemon),
         stdin=slave,
         stdout=slave,
         stderr=slave,

@@ -9,18 +9,14 @@ take the die layout, the dummy bytes, the published rate and the channels from i
 
 from __future__ import annotations
 
-import gc
 import itertools
 import math
-import sys
-import threading
 import time
 from collections.abc import Iterator, Sequence
 from enum import IntEnum, IntFlag
 from pathlib import Path
 from typing import Any, Literal
 
-import anyio
 import numpy as np
 import pytest
 
@@ -47,7 +43,7 @@ from imud.clock import Clock
 from imud.config import load_config
 from imud.daemon import Daemon
 from imud.errors import DeviceIdentityError
-from tests.helpers import free_port
+from tests.helpers import free_port, run_in_process
 
 
 # --- the toy chip's register map -----------------------------------------------------------------
@@ -245,15 +241,7 @@ def test_toy_chip_streams_through_the_real_daemon(tmp_path: Path, toy_registered
         finally:
             daemon.request_stop()
 
-    switch = sys.getswitchinterval()
-    t = threading.Thread(target=subscriber)
-    t.start()
-    try:
-        assert anyio.run(daemon.run) == 0
-    finally:
-        t.join()
-        sys.setswitchinterval(switch)
-        gc.unfreeze()
+    run_in_process(daemon, subscriber)
     assert not failure, failure
     assert sum(b.count for b in got) >= 400
     for prev, b in itertools.pairwise(got):  # continuous, or every gap counted

@@ -8,16 +8,13 @@ it; a bus process that crashes is restarted instead and the petting goes on
 from __future__ import annotations
 
 import contextlib
-import gc
 import socket
-import sys
 import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import anyio
 import pytest
 
 import imud.busworker
@@ -26,7 +23,7 @@ from imud.chips.api import DeviceBase, Driver, RawBatch, SimChip
 from imud.clock import Clock
 from imud.config import load_config
 from imud.daemon import Daemon
-from tests.helpers import free_port
+from tests.helpers import free_port, run_in_process
 
 
 class Hanging:
@@ -100,15 +97,9 @@ def test_a_hung_worker_stops_the_watchdog_in_thread_mode(
             release.set()
             daemon.request_stop()
 
-    switch = sys.getswitchinterval()
-    t = threading.Thread(target=drive)
-    t.start()
     try:
-        assert anyio.run(daemon.run) == 0
+        run_in_process(daemon, drive)
     finally:
-        t.join()
-        sys.setswitchinterval(switch)
-        gc.unfreeze()
         notify.close()
     h = marks["hang"]
     pets = [at for at, m in log if m == "WATCHDOG=1"]
