@@ -227,7 +227,10 @@ class ErrorModel:
         )
 
 
-def quantise(x: F64, lsb: float, bits: int = 16) -> npt.NDArray[np.int32]:
-    """Round to the range's LSB and saturate at full scale, as the ADC does."""
+def quantise(
+    x: F64, lsb: float, bits: int = 16, symmetric: bool = False
+) -> npt.NDArray[np.int32]:
+    """Round to the range's LSB and saturate at full scale, as the ADC does. `symmetric`: the
+    most negative code is reserved (a chip's invalid marker), so saturation stops one above."""
     hi = 2 ** (bits - 1) - 1
-    return np.clip(np.rint(x / lsb), -hi - 1, hi).astype(np.int32)
+    return np.clip(np.rint(x / lsb), -hi if symmetric else -hi - 1, hi).astype(np.int32)

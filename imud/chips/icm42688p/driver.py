@@ -35,6 +35,7 @@ _HDR_ACCEL = int(R.Header.ACCEL)
 _HDR_GYRO = int(R.Header.GYRO)
 _HDR_20 = int(R.Header.HIRES_20)
 _FIFO_FULL = int(R.IntStatus.FIFO_FULL_INT)
+_and, _min = np.bitwise_and.reduce, np.minimum.reduce
 
 
 def gyro_scale_rads(range_dps: float, hires: bool) -> float:
@@ -56,6 +57,7 @@ class Packets:
     accel_invalid: npt.NDArray[np.bool_]  # absent from the packet, or the invalid marker
     gyro_invalid: npt.NDArray[np.bool_]
     temperature_invalid: npt.NDArray[np.bool_]
+    clean: bool = False  # known to have no invalid value (the masks are all False)
 
     @property
     def n(self) -> int:
@@ -93,9 +95,16 @@ def decode_packets(data: bytes, hires: bool) -> Packets:
         temp = rec["temp"] / 2.07 + 25.0
         temp_bad = rec["temp"] == R.INVALID_TEMP_8
         no_20 = np.zeros(hdr.shape, dtype=bool)
+    ts = rec["ts"].astype(np.int64)
+    n = hdr.shape[0]
+    need = _HDR_ACCEL | _HDR_GYRO | (_HDR_20 if hires else 0)
+    if n and _and(hdr) & need == need and _min(accel, None) > marker and _min(gyro, None) > marker:
+        if not temp_bad.any():  # the usual batch: four reductions say every value is valid
+            none = np.zeros(n, dtype=bool)
+            return Packets(accel, gyro, temp, ts, none, none, none, clean=True)
     accel_bad = ((hdr & _HDR_ACCEL) == 0) | (accel == marker).all(axis=1) | no_20
     gyro_bad = ((hdr & _HDR_GYRO) == 0) | (gyro == marker).all(axis=1) | no_20
-    return Packets(accel, gyro, temp, rec["ts"].astype(np.int64), accel_bad, gyro_bad, temp_bad)
+    return Packets(accel, gyro, temp, ts, accel_bad, gyro_bad, temp_bad)
 
 
 def _select_bank(dev: RegisterDevice, bank: int) -> None:
@@ -253,18 +262,16 @@ class Icm42688pDriver:
             return RawBatch(0, {}, timing)
         timing.fifo_full = full
         timing.counter = ChipCounter(p.timestamp, R.TIMESTAMP_MODULO)
+        if p.clean:
+            masks: tuple[npt.NDArray[np.bool_] | None, ...] = (None, None, None)
+        else:
+            masks = (_any(p.accel_invalid), _any(p.gyro_invalid), _any(p.temperature_invalid))
         return RawBatch(
             p.n,
             {
-                Channel.ACCEL: RawChannel(
-                    p.accel, self.accel_scale, self.full_scale, _any(p.accel_invalid)
-                ),
-                Channel.GYRO: RawChannel(
-                    p.gyro, self.gyro_scale, self.full_scale, _any(p.gyro_invalid)
-                ),
-                Channel.TEMPERATURE: RawChannel(
-                    p.temperature_c, invalid=_any(p.temperature_invalid)
-                ),
+                Channel.ACCEL: RawChannel(p.accel, self.accel_scale, self.full_scale, masks[0]),
+                Channel.GYRO: RawChannel(p.gyro, self.gyro_scale, self.full_scale, masks[1]),
+                Channel.TEMPERATURE: RawChannel(p.temperature_c, invalid=masks[2]),
             },
             timing,
         )
@@ -285,7 +292,8 @@ class Icm42688pDriver:
         data = self.dev.read(R.Bank0.FIFO_DATA, n * self.packet)
         r1 = self.clock.now_ns()
         p = decode_packets(data, self.cfg.hires)
-        self.invalid_packets += int((p.accel_invalid & p.gyro_invalid).sum())
+        if not p.clean:
+            self.invalid_packets += int((p.accel_invalid & p.gyro_invalid).sum())
         if p.n < n:
             # fewer packets than counted: a garbled burst (SPI reads 0xFF when MISO floats) or a
             # FIFO out of step. Keep what decoded, flush, and resync on the next read.

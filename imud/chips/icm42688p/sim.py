@@ -126,8 +126,8 @@ class Icm42688pSim(SampledChip):
         a_lsb, g_lsb = self._lsb(hires)
         bits = 20 if hires else 16
         # the most negative code is the invalid marker: a saturated reading stops one above it
-        acc = np.maximum(quantise(fm, a_lsb, bits), 1 - 2 ** (bits - 1))
-        gyr = np.maximum(quantise(wm, g_lsb, bits), 1 - 2 ** (bits - 1))
+        acc = quantise(fm, a_lsb, bits, symmetric=True)
+        gyr = quantise(wm, g_lsb, bits, symmetric=True)
         if hires:
             acc &= ~0x3  # 18-bit effective accel: the low two bits read 0
         # sensors still starting up deliver the invalid marker
