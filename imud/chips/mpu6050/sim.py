@@ -83,7 +83,8 @@ class Mpu6050Sim(SampledChip):
         self.busy_until_ns = 0
         self.latest_accel = np.zeros(3, dtype=np.int32)
         self.latest_gyro = np.zeros(3, dtype=np.int32)
-        self.data_regs = bytes(14)  # ACCEL_XOUT_H .. GYRO_ZOUT_L
+        self.latest_temp_raw = 0
+        self._data_regs: bytes | None = bytes(14)  # ACCEL_XOUT_H .. GYRO_ZOUT_L
         self._accel_hold: tuple[int, np.ndarray] | None = None
         self._anchor(self.clock.now_ns())
 
@@ -120,10 +121,7 @@ class Mpu6050Sim(SampledChip):
         gyr = quantise(wm, self.gyro_lsb)
         self.latest_accel, self.latest_gyro = acc[-1], gyr[-1]
         self.latest_temp_raw = int(np.rint((temp[-1] - 36.53) * 340.0))
-        # the data registers' bytes, once per chunk rather than on every register read
-        self.data_regs = np.concatenate(
-            [self.latest_accel, [self.latest_temp_raw], self.latest_gyro]
-        ).astype(">i2").tobytes()
+        self._data_regs = None  # rebuilt when next read
         self.int_status |= _DATA_RDY
         if self.regs[R.USER_CTRL] & _FIFO_ON and self.regs[R.FIFO_EN]:
             self._push_fifo(acc, gyr, temp)
@@ -179,7 +177,11 @@ class Mpu6050Sim(SampledChip):
             return bytes(out)
         image = bytearray(self.regs)
         image[R.INT_STATUS] = self.int_status
-        image[R.ACCEL_XOUT_H : R.GYRO_XOUT_H + 6] = self.data_regs
+        if self._data_regs is None:  # at most once per chunk of samples, only when read
+            self._data_regs = np.concatenate(
+                [self.latest_accel, [self.latest_temp_raw], self.latest_gyro]
+            ).astype(">i2").tobytes()
+        image[R.ACCEL_XOUT_H : R.GYRO_XOUT_H + 6] = self._data_regs
         image[R.FIFO_COUNT_H : R.FIFO_COUNT_H + 2] = len(self.fifo).to_bytes(2, "big")
         end = min(register + length, len(image))
         if register <= R.INT_STATUS < end:
