@@ -227,9 +227,7 @@ class ErrorModel:
         )
 
 
-def quantise(
-    x: F64, lsb: float, bits: int = 16, symmetric: bool = False
-) -> npt.NDArray[np.int32]:
+def quantise(x: F64, lsb: float, bits: int = 16, symmetric: bool = False) -> npt.NDArray[np.int32]:
     """Round to the range's LSB and saturate at full scale, as the ADC does. `symmetric`: the
     most negative code is reserved (a chip's invalid marker), so saturation stops one above."""
     hi = 2 ** (bits - 1) - 1

@@ -98,10 +98,16 @@ def decode_packets(data: bytes, hires: bool) -> Packets:
     ts = rec["ts"].astype(np.int64)
     n = hdr.shape[0]
     need = _HDR_ACCEL | _HDR_GYRO | (_HDR_20 if hires else 0)
-    if n and _and(hdr) & need == need and _min(accel, None) > marker and _min(gyro, None) > marker:
-        if not temp_bad.any():  # the usual batch: four reductions say every value is valid
-            none = np.zeros(n, dtype=bool)
-            return Packets(accel, gyro, temp, ts, none, none, none, clean=True)
+    clean = (  # the usual batch: four reductions say every value is valid
+        n
+        and _and(hdr) & need == need
+        and _min(accel, None) > marker
+        and _min(gyro, None) > marker
+        and not temp_bad.any()
+    )
+    if clean:
+        none = np.zeros(n, dtype=bool)
+        return Packets(accel, gyro, temp, ts, none, none, none, clean=True)
     accel_bad = ((hdr & _HDR_ACCEL) == 0) | (accel == marker).all(axis=1) | no_20
     gyro_bad = ((hdr & _HDR_GYRO) == 0) | (gyro == marker).all(axis=1) | no_20
     return Packets(accel, gyro, temp, ts, accel_bad, gyro_bad, temp_bad)

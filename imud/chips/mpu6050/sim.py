@@ -178,9 +178,11 @@ class Mpu6050Sim(SampledChip):
         image = bytearray(self.regs)
         image[R.INT_STATUS] = self.int_status
         if self._data_regs is None:  # at most once per chunk of samples, only when read
-            self._data_regs = np.concatenate(
-                [self.latest_accel, [self.latest_temp_raw], self.latest_gyro]
-            ).astype(">i2").tobytes()
+            self._data_regs = (
+                np.concatenate([self.latest_accel, [self.latest_temp_raw], self.latest_gyro])
+                .astype(">i2")
+                .tobytes()
+            )
         image[R.ACCEL_XOUT_H : R.GYRO_XOUT_H + 6] = self._data_regs
         image[R.FIFO_COUNT_H : R.FIFO_COUNT_H + 2] = len(self.fifo).to_bytes(2, "big")
         end = min(register + length, len(image))
