@@ -83,7 +83,7 @@ def listen_problem(text: str, listen: Iterable[str] = ()) -> str | None:
         hint = "stop it, or change [zenoh] listen in the config"
     elif "cannot assign requested address" in low or "os error 99" in low:
         what = "that address is not on this machine"
-        hint = "change [zenoh] listen to one of its addresses (or 0.0.0.0)"
+        hint = "change [zenoh] listen to one of its addresses, e.g. tcp/127.0.0.1:7447"
     elif "permission denied" in low and "listen" in low:
         what = "permission denied (ports below 1024 need privileges)"
         hint = "change [zenoh] listen to a port above 1023"

@@ -123,7 +123,9 @@ def test_the_docs_decoder_decodes_what_the_daemon_sends(tmp_path: Path) -> None:
 PATH_REF = re.compile(
     r"(?<![/\w.])((?:docs|imud|tests|bench|configs|systemd)/[\w/<>*.-]*\.(?:py|md|toml|service|rules|conf))\b"
 )
-OUTSIDE = ("/work/", "../shared", "seed-facts.md", "chips-invensense-bosch")
+# what points outside: a parent folder's files, the workspace's absolute paths, the notes the
+# project started from (by their names); spelled as patterns so this file does not cite them
+OUTSIDE = re.compile(r"(?<!\.)\.\./[a-z]|(?<![\w.])/w[o]rk/|seed-f[a]cts|chips-inv[e]nsense")
 TEXT_FILES = [
     *DOCS,
     *sorted((REPO / "imud").rglob("*.py")),
@@ -137,9 +139,8 @@ TEXT_FILES = [
 @pytest.mark.parametrize("path", TEXT_FILES, ids=lambda p: str(p.relative_to(REPO)))
 def test_code_and_docs_cite_only_files_inside_the_repository(path: Path) -> None:
     text = path.read_text()
-    if path != Path(__file__).resolve():
-        for outside in OUTSIDE:
-            assert outside not in text, f"{path.name} cites {outside!r}, outside the repository"
+    found = OUTSIDE.search(text)
+    assert found is None, f"{path.name} cites {found and found.group()!r}, outside the repository"
     missing = []
     for ref in PATH_REF.findall(text):
         if "<" in ref or "*" in ref or ref.startswith("imud/chips/<"):
