@@ -1,3 +1,3 @@
-from imud.cli import main
+from imud.cli.commands import main
 
 main()

@@ -1,0 +1,1 @@
+"""The `imud` command (`imud.cli.commands`) and what it prints (`*_view`)."""

@@ -1,0 +1,360 @@
+"""The `imud` command: run the daemon, ask it how it is doing, watch its data, check configs.
+
+Exit codes: 0 done, 1 no daemon (or the daemon failed to start), 2 usage or config errors (a
+malformed `--connect`, an unknown device, truth asked of a device that does not publish it).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import difflib
+import json
+import os
+import sys
+import time
+from collections.abc import Iterator
+from typing import TYPE_CHECKING, Any, NoReturn
+
+import click
+
+from imud.config import DEFAULT_ENDPOINT
+from imud.errors import ConfigError
+from imud.status import DeviceState
+from imud.zerrors import endpoint_problem
+
+if TYPE_CHECKING:
+    from rich.console import Console, RenderableType
+
+    from imud.config import ImudConfig
+
+from imud.cli.config_view import config_summary
+from imud.cli.echo_view import Samples, Summary, arrivals
+from imud.cli.status_view import cut, status_view
+
+EXIT_NO_DAEMON = 1
+EXIT_USAGE = 2
+ECHO_STATUS_TIMEOUT_S = 1.0  # echo's status question: a wrong name must fail within 2 s
+
+
+def _check_endpoint(_ctx: click.Context, _param: click.Parameter, value: str) -> str:
+    """A malformed endpoint is a usage error naming the value and the expected form; left to
+    Zenoh it would read as "no daemon reachable"."""
+    problem = endpoint_problem(value)
+    if problem:
+        raise click.BadParameter(problem)
+    return value
+
+
+_connect = click.option(
+    "--connect",
+    "endpoint",
+    default=DEFAULT_ENDPOINT,
+    show_default=True,
+    callback=_check_endpoint,
+    help="Zenoh endpoint of the daemon, PROTOCOL/HOST:PORT",
+)
+_prefix = click.option("--prefix", default="imud", show_default=True, help="key prefix")
+
+
+def _load(path: str) -> ImudConfig:
+    from imud.config import load_config
+
+    try:
+        return load_config(path)
+    except ConfigError as e:
+        click.echo(f"{path}: invalid config:", err=True)
+        for m in e.messages:
+            click.echo(f"  {m}", err=True)
+        sys.exit(EXIT_USAGE)
+
+
+def _fail(message: str, code: int, as_json: bool = False) -> NoReturn:
+    """Stop with `message`: on stderr, or as `{"error": ...}` on stdout for --json callers (a
+    script reading JSON gets JSON, whatever happened)."""
+    if as_json:
+        click.echo(json.dumps({"error": message}))
+    else:
+        click.echo(f"imud: {message}", err=True)
+    sys.exit(code)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="imud")
+def main() -> None:
+    """imud: IMU acquisition daemon publishing over Eclipse Zenoh."""
+
+
+# --- run -----------------------------------------------------------------------------------------
+@main.command()
+@click.option(
+    "--config",
+    "config_path",
+    required=True,
+    type=click.Path(dir_okay=False),
+    help="TOML config file",
+)
+@click.option(
+    "--log-level",
+    default="info",
+    show_default=True,
+    type=click.Choice(["debug", "info", "warning", "error"]),
+)
+def run(config_path: str, log_level: str) -> None:
+    """Run the daemon in the foreground until SIGTERM/SIGINT."""
+    import logging
+
+    import anyio
+
+    from imud.daemon import Daemon
+    from imud.logsetup import setup_logging
+    from imud.zerrors import CleanZenohMessages, describe
+
+    cfg = _load(config_path)
+    setup_logging(log_level)
+    for handler in logging.getLogger().handlers:
+        handler.addFilter(CleanZenohMessages())
+    daemon = Daemon(cfg)
+    try:
+        code = anyio.run(daemon.run)
+    except KeyboardInterrupt:  # before the daemon's own signal handling is in place
+        sys.exit(130)
+    except Exception as e:  # e.g. the Zenoh listen port is taken: one line, no traceback
+        logging.getLogger("imud").debug("the daemon failed", exc_info=True)
+        what = "stopped on an error" if daemon.ready else "cannot start"
+        click.echo(f"imud: {what}: {describe(e, cfg.zenoh.listen)}", err=True)
+        sys.exit(1)
+    sys.exit(code)
+
+
+# --- check-config, config-schema ---------------------------------------------------------------
+@main.command("check-config")
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="print the full resolved config as JSON")
+def check_config(file: str, as_json: bool) -> None:
+    """Validate FILE: a short summary (or the full config with --json), exit 0; or the errors,
+    one line each, exit 2."""
+    cfg = _load(file)
+    from imud.zerrors import ZenohSetupError
+    from imud.zsession import daemon_config
+
+    try:  # `options` are Zenoh's to judge: build the session config as the daemon will
+        daemon_config(cfg.zenoh)
+    except ZenohSetupError as e:
+        click.echo(f"{file}: invalid config:\n  {e}", err=True)
+        sys.exit(EXIT_USAGE)
+    if as_json:
+        click.echo(json.dumps(cfg.model_dump(mode="json"), indent=2))
+        return
+    for line in config_summary(cfg, file):
+        click.echo(line)
+
+
+@main.command("config-schema")
+def config_schema() -> None:
+    """Print the config file's JSON Schema."""
+    from imud.config import config_model
+
+    click.echo(json.dumps(config_model().model_json_schema(), indent=2))
+
+
+# --- talking to a daemon -------------------------------------------------------------------------
+def _session(endpoint: str, as_json: bool = False) -> Any:
+    from imud.client import NoDaemon, open_session
+
+    try:
+        return open_session(endpoint)
+    except NoDaemon as e:
+        _fail(f"{e}; is `imud run` running? (--connect to point elsewhere)", 1, as_json)
+
+
+def _ask_status(
+    session: Any, endpoint: str, prefix: str, timeout: float, as_json: bool = False
+) -> dict[str, Any]:
+    from imud.client import NoDaemon, get_status
+
+    try:
+        return get_status(session, prefix, timeout=timeout)
+    except NoDaemon as e:
+        _fail(_no_answer(endpoint, prefix, e), EXIT_NO_DAEMON, as_json)
+
+
+def _no_answer(endpoint: str, prefix: str, e: Exception) -> str:
+    return (
+        f"no daemon answered at {endpoint} ({e}); is `imud run` running there, "
+        f"with [zenoh] prefix = {prefix!r}?"
+    )
+
+
+# --- status --------------------------------------------------------------------------------------
+@main.command()
+@_connect
+@_prefix
+@click.option("--json", "as_json", is_flag=True, help="print the daemon's JSON answer")
+@click.option("--timeout", default=2.0, show_default=True, help="seconds to wait for an answer")
+@click.option("--watch", is_flag=True, help="refresh until Ctrl-C")
+@click.option(
+    "--interval",
+    default=1.0,
+    show_default=True,
+    type=click.FloatRange(min=0.1),
+    help="seconds between refreshes with --watch",
+)
+def status(
+    endpoint: str, prefix: str, as_json: bool, timeout: float, watch: bool, interval: float
+) -> None:
+    """Show the daemon's devices and their health (exit 1 when no daemon answers)."""
+    from rich.console import Console
+
+    console = Console(highlight=False, soft_wrap=False)
+    with _session(endpoint, as_json) as s:
+        if not watch:
+            st = _ask_status(s, endpoint, prefix, timeout, as_json)
+            if as_json:
+                click.echo(json.dumps(st, indent=2))
+            else:
+                for r in status_view(st, endpoint, console):
+                    console.print(r)
+            return
+        with contextlib.suppress(KeyboardInterrupt):  # Ctrl-C is how --watch ends
+            _watch(s, endpoint, prefix, timeout, interval, as_json, console)
+
+
+def _watch(
+    s: Any,
+    endpoint: str,
+    prefix: str,
+    timeout: float,
+    interval: float,
+    as_json: bool,
+    console: Console,
+) -> None:
+    """Refresh every `interval` s: in place on a terminal (rich Live); elsewhere (a pipe, a log
+    file) one full view after another, so each refresh stays readable. A daemon that goes away
+    is shown as such and asked again; it does not end the watch."""
+    from rich.console import Group
+    from rich.live import Live
+    from rich.text import Text
+
+    from imud.client import NoDaemon, get_status
+
+    def frames() -> Iterator[tuple[dict[str, Any] | None, str | None]]:
+        while True:
+            t0 = time.monotonic()
+            try:
+                yield get_status(s, prefix, timeout=timeout), None
+            except NoDaemon as e:
+                yield None, _no_answer(endpoint, prefix, e) + f"; asking again every {interval:g} s"
+            time.sleep(max(0.0, interval - (time.monotonic() - t0)))
+
+    live = console.is_terminal and not console.is_dumb_terminal and not as_json
+    if not live:
+        for st, err in frames():
+            if as_json:
+                click.echo(json.dumps(st if st is not None else {"error": err}))
+            elif st is None:
+                console.print(cut(Text(f"imud: {err}"), console.width))
+            else:
+                for r in status_view(st, endpoint, console):
+                    console.print(r)
+                console.print()
+            sys.stdout.flush()
+        return
+    with Live(console=console, auto_refresh=False) as view:
+        for st, err in frames():
+            body: RenderableType
+            if st is None:
+                body = cut(Text(f"imud: {err}", style="red"), console.width)
+            else:
+                body = Group(*status_view(st, endpoint, console))
+            view.update(body, refresh=True)
+
+
+# --- echo ----------------------------------------------------------------------------------------
+@main.command()
+@click.argument("device")
+@_connect
+@_prefix
+@click.option("--count", type=click.IntRange(min=1), help="stop after N samples (N summaries)")
+@click.option("--json", "as_json", is_flag=True, help="one JSON object per sample (per summary)")
+@click.option("--summary", is_flag=True, help="once a second: rate, lost, channel means")
+@click.option("--truth", is_flag=True, help="the simulator's ground truth instead of the samples")
+@click.option(
+    "--timeout",
+    default=ECHO_STATUS_TIMEOUT_S,
+    show_default=True,
+    help="seconds to wait for the daemon's status (asked first, to check DEVICE)",
+)
+def echo(
+    device: str,
+    endpoint: str,
+    prefix: str,
+    count: int | None,
+    as_json: bool,
+    summary: bool,
+    truth: bool,
+    timeout: float,
+) -> None:
+    """Print DEVICE's decoded samples as they arrive (Ctrl-C stops)."""
+    import zenoh
+
+    from imud.client import data_key
+
+    with _session(endpoint, as_json) as s:
+        st = _ask_status(s, endpoint, prefix, timeout, as_json)
+        dev = _device(st, device, endpoint, truth, as_json)
+        if dev["state"] != DeviceState.RUNNING and not as_json:
+            click.echo(
+                f"imud: {device} is in state {dev['state']}"
+                + (f": {dev['last_error']}" if dev.get("last_error") else "")
+                + "; waiting for samples (Ctrl-C to stop)",
+                err=True,
+            )
+        sub = s.declare_subscriber(
+            data_key(device, prefix, truth), zenoh.handlers.FifoChannel(16384)
+        )
+        try:
+            out: Samples | Summary = (
+                Summary(device, truth, as_json) if summary else Samples(truth, as_json, count)
+            )
+            for b in arrivals(sub, 0.05):
+                if out.feed(b, time.monotonic()) and count is not None and out.printed >= count:
+                    break
+        except KeyboardInterrupt:
+            pass
+        except BrokenPipeError:  # `imud echo ... | head`: stop quietly, as `cat` would
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        finally:
+            sub.undeclare()
+
+
+def _device(
+    st: dict[str, Any], device: str, endpoint: str, truth: bool, as_json: bool
+) -> dict[str, Any]:
+    """DEVICE's entry in the daemon's status; a wrong name or truth that is not published is a
+    usage error now, rather than a subscription that never receives anything."""
+    by = {d["name"]: d for d in st.get("devices", [])}
+    if device not in by:
+        close = difflib.get_close_matches(device, list(by), n=1, cutoff=0.5)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        _fail(
+            f"no device {device!r} on the daemon at {endpoint}{hint} "
+            f"(its devices: {', '.join(by) or 'none'})",
+            EXIT_USAGE,
+            as_json,
+        )
+    dev = by[device]
+    if truth and not dev.get("truth", False):
+        if str(dev.get("bus", "")).startswith("sim-"):
+            why = (
+                f"{device} does not publish simulator truth (truth is off): set `truth = true` "
+                "in its [device.sim] table and restart the daemon"
+            )
+        else:
+            why = f"{device} is real hardware ({dev.get('bus')}): only simulated devices have truth"
+        _fail(why, EXIT_USAGE, as_json)
+    found: dict[str, Any] = dev
+    return found
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,58 @@
+"""`imud check-config`'s summary: what a config asks for, for a human."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from imud.config import ImudConfig
+
+
+def config_summary(cfg: ImudConfig, path: str) -> list[str]:
+    """What a config asks for, for a human: one line per device, one for the daemon, one for
+    Zenoh. Addresses in hex, as datasheets and i2cdetect write them."""
+    from imud.buses.models import describe
+
+    n = len(cfg.device)
+    d, z = cfg.daemon, cfg.zenoh
+    rt = f"realtime priority {d.realtime_priority}" if d.realtime_priority else "no realtime"
+    lines = [
+        f"{path}: valid, {n} device{'s' if n != 1 else ''}",
+        f"daemon: {'one process per bus' if d.bus_processes else 'bus threads'}, {rt}",
+        f"zenoh: {z.mode}, listen {', '.join(z.listen) or 'nowhere'}, "
+        f"connect {', '.join(z.connect) or 'none'}, prefix {z.prefix!r}, "
+        f"shared memory {'on' if z.shared_memory else 'off'}"
+        + (
+            ", options " + ", ".join(f"{k}={v!r}" for k, v in z.options.items())
+            if z.options
+            else ""
+        ),
+    ]
+    rows = []
+    for dev in cfg.device:
+        ranges = []
+        fields = dev.model_dump()  # the range fields have the same names for every chip
+        gyro, accel = fields.get("gyro_range_dps"), fields.get("accel_range_g")
+        if gyro is not None:
+            ranges.append(f"gyro ±{gyro:g} °/s")
+        if accel is not None:
+            ranges.append(f"accel ±{accel:g} g")
+        if dev.sim is not None:
+            sim = f"sim ({dev.sim.motion.kind}{', truth on' if dev.sim.truth else ''})"
+        else:
+            sim = "hardware"
+        extra = f", calibration {dev.calibration}" if dev.calibration else ""
+        rows.append(
+            [
+                dev.name,
+                dev.chip,
+                " + ".join(describe(b) for b in dev.die_buses()),
+                f"{dev.odr_hz:g} Hz",
+                ", ".join(ranges),
+                sim + extra,
+            ]
+        )
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    for r in rows:
+        lines.append("  " + "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip())
+    return lines

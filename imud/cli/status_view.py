@@ -1,0 +1,130 @@
+"""`imud status`'s table: fits the terminal, whole columns dropped before a number is split;
+long text (errors, bus-process restarts) below it, one line per device."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable
+from typing import TYPE_CHECKING, Any
+
+from imud.status import DeviceState
+
+if TYPE_CHECKING:
+    from rich.console import Console, RenderableType
+    from rich.table import Table
+    from rich.text import Text
+
+
+def cut(text: Text, width: int) -> Text:
+    """One line, cut with an ellipsis at `width` (rich would wrap it onto the next lines)."""
+    text.truncate(width, overflow="ellipsis")
+    text.no_wrap = True
+    return text
+
+
+def _ago(seconds: float) -> str:
+    s = max(0, int(seconds))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min"
+    if s < 86400:
+        return f"{s // 3600} h {s % 3600 // 60} min"
+    return f"{s // 86400} d {s % 86400 // 3600} h"
+
+
+def _num(v: Any, spec: str = "") -> str:
+    return "-" if v is None else format(v, spec)
+
+
+# (header, status key(s) -> cell, right-aligned). Listed in display order; `_DROP` says which go
+# first when the terminal is too narrow. device, state, rate and lost always stay.
+_COLUMNS: dict[str, tuple[Any, bool]] = {
+    "device": (lambda d: d["name"], False),
+    "chip": (lambda d: d["chip"], False),
+    "bus": (lambda d: d["bus"], False),
+    "state": (lambda d: d["state"], False),
+    "odr Hz": (lambda d: _num(d["odr_hz"], "g"), True),
+    "rate Hz": (lambda d: _num(d["measured_rate_hz"], ".1f"), True),
+    "samples": (lambda d: str(d["samples"]), True),
+    "lost": (lambda d: str(d["lost_samples"]), True),
+    "overflows": (lambda d: str(d["fifo_overflows"]), True),
+    "bus err": (lambda d: str(d["bus_errors"]), True),
+    "temp °C": (lambda d: _num(d["temperature_c"], ".1f"), True),
+    "calibration": (lambda d: (d["calibration"] or "-").rsplit("/", 1)[-1], False),
+}
+_DROP = ("calibration", "bus", "odr Hz", "overflows", "chip", "temp °C", "bus err", "samples")
+# counters shown below the table when nonzero (and not already a column)
+_NOTES = (
+    ("lost_samples", "lost", "lost"),
+    ("fifo_overflows", "FIFO overflows", "overflows"),
+    ("bus_errors", "bus errors", "bus err"),
+    ("invalid_samples", "invalid samples", None),
+    ("bad_registers", "bad registers", None),
+    ("restarts", "restarts", None),
+    ("unexpected_errors", "unexpected errors", None),
+    ("publish_dropped", "publish drops", None),
+)
+_STATE_STYLE = {DeviceState.RUNNING: "green", DeviceState.ERROR: "red", DeviceState.STOPPED: "dim"}
+
+
+def _table(devices: list[dict[str, Any]], columns: Iterable[str]) -> Table:
+    from rich import box
+    from rich.table import Table
+
+    t = Table(box=box.SIMPLE_HEAD, pad_edge=False, show_edge=False, collapse_padding=True)
+    cols = list(columns)
+    for c in cols:
+        t.add_column(c, no_wrap=True, justify="right" if _COLUMNS[c][1] else "left")
+    for d in devices:
+        cells = [str(_COLUMNS[c][0](d)) for c in cols]
+        if "state" in cols:
+            i = cols.index("state")
+            cells[i] = f"[{_STATE_STYLE.get(d['state'], 'yellow')}]{cells[i]}[/]"
+        t.add_row(*cells)
+    return t
+
+
+def status_view(st: dict[str, Any], endpoint: str, console: Console) -> list[RenderableType]:
+    """The status as a headline, a table that fits the console's width (whole columns are left
+    out, lowest value first, rather than any number folded), and one line per device or bus
+    with something to say (its last error and how long ago, counters not in the table), cut at
+    the width: the full text is in --json."""
+    from rich.text import Text
+
+    width = console.width
+    devices = st.get("devices", [])
+    running = sum(d["state"] == DeviceState.RUNNING for d in devices)
+    head = (
+        f"imud {st.get('version', '?')} at {endpoint}, up {_ago(st.get('uptime_s', 0))}: "
+        f"{running}/{len(devices)} devices running"
+        + ("" if st.get("ready", True) else ", starting")
+    )
+    cols = list(_COLUMNS)
+    table = _table(devices, cols)
+    unbounded = console.options.update_width(100_000)  # measure() is clamped to the width
+    for drop in _DROP:
+        if console.measure(table, options=unbounded).maximum <= width:
+            break
+        cols.remove(drop)
+        table = _table(devices, cols)
+    out: list[RenderableType] = [cut(Text(head), width), table]
+    now = time.time()
+    for d in devices:
+        parts = [f"{d[k]} {label}" for k, label, col in _NOTES if d.get(k) and col not in cols]
+        line = ", ".join(parts)
+        if d.get("last_error"):
+            at = d.get("last_error_at")
+            when = f" {_ago(now - at)} ago" if isinstance(at, int | float) else ""
+            line += ("; " if line else "") + f"last error{when}: {d['last_error']}"
+        if line:
+            text = Text(f"{d['name']}: ", style="bold")
+            text.append(line, style="red" if d["state"] == DeviceState.ERROR else "")
+            out.append(cut(text, width))
+    for b in st.get("buses", []):
+        if b.get("restarts") or b.get("last_error"):
+            line = f"bus {b['bus']}: process restarted {b.get('restarts', 0)} times"
+            if b.get("last_error"):
+                line += f"; last error: {b['last_error']}"
+            out.append(cut(Text(line), width))
+    return out
