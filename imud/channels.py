@@ -48,7 +48,6 @@ CHANNELS: dict[Channel, ChannelInfo] = {
     Channel.INCLINATION: ChannelInfo("inclination", 3, "m/s^2"),
 }
 assert list(CHANNELS) == sorted(CHANNELS), "wire order is bit order"
-ALL_CHANNELS = Channel(sum(CHANNELS))
 # (channel, its bit as a plain int, width) in wire order: hot paths test bits on ints, since an
 # operator on an IntFlag builds a new enum member each time
 ORDER: list[tuple[Channel, int, int]] = [(c, int(c), i.width) for c, i in CHANNELS.items()]

@@ -28,15 +28,12 @@ _TEMPERATURE = int(Channel.TEMPERATURE)
 _max, _min = np.maximum.reduce, np.minimum.reduce  # skip ndarray.max's Python wrapper
 
 
-def stamp(clock: SampleClock, raw: RawBatch) -> Stamped:
-    """Stamps from the chip's sample clock fitted to the read's host-time brackets, or the
-    driver's own (a chip of several dies stamps each die itself)."""
-    t = raw.timing
-    if not isinstance(t, FifoRead):
-        return t
+def stamp(clock: SampleClock, t: FifoRead, n: int) -> Stamped:
+    """Stamps of `n` samples from the chip's sample clock fitted to a read's host-time
+    brackets."""
     c = t.counter
     return clock.update(
-        raw.n,
+        n,
         t.t_before_ns,
         t.t_after_ns,
         t.resync,
@@ -163,7 +160,7 @@ class Pipeline:
 
     def process(self, raw: RawBatch) -> SampleBatch:
         t = raw.timing
-        st = stamp(self.clock, raw) if isinstance(t, FifoRead) else self._continue(t)
+        st = stamp(self.clock, t, raw.n) if isinstance(t, FifoRead) else self._continue(t)
         if st.period_ns:
             self.period_ns = st.period_ns
         flags = sample_flags(raw)

@@ -566,6 +566,21 @@ def test_fact_table_has_no_duplicates(chip: str) -> None:
 # and what imud writes): this checks the masks' positions together with the codes.
 # -------------------------------------------------------------------------------------------------
 ICM_LN = icm.MODE_LOW_NOISE
+
+
+def _default_aaf(register: int) -> int:
+    """The bits the ICM driver's plan sets in an anti-alias register for the default (reset)
+    filter rows: they must be the chip's reset bytes."""
+    from imud.chips.icm42688p.config import Icm42688pConfig
+    from imud.chips.icm42688p.driver import register_plan
+
+    cfg = Icm42688pConfig.model_validate(
+        {"chip": "icm42688p", "name": "x", "bus": {"kind": "sim", "transport": "spi"}}
+    )
+    (setting,) = [s for s in register_plan(cfg) if s.bank and s.register == register]
+    return setting.set_bits
+
+
 COMPOSED: list[tuple[str, Callable[[], int], int, str]] = [
     # MPU6050
     (
@@ -672,43 +687,37 @@ COMPOSED: list[tuple[str, Callable[[], int], int, str]] = [
     ),
     (
         "icm42688p:GYRO_CONFIG_STATIC3 reset (585 Hz row)",
-        lambda: icm.GYRO_AAF_DELT.bits(icm.AAF_TABLE[icm.AAF_DEFAULT_GYRO_HZ][0]),
+        lambda: _default_aaf(icm.Bank1.GYRO_CONFIG_STATIC3),
         0x0D,
         f"{AAF} §1.1: reset 0x0D · XIO",
     ),
     (
         "icm42688p:GYRO_CONFIG_STATIC4 reset (585 Hz row)",
-        lambda: icm.GYRO_AAF_DELTSQR_LO.bits(icm.AAF_TABLE[icm.AAF_DEFAULT_GYRO_HZ][1] & 0xFF),
+        lambda: _default_aaf(icm.Bank1.GYRO_CONFIG_STATIC4),
         0xAA,
         f"{AAF} §1.1: reset 0xAA · XIO",
     ),
     (
         "icm42688p:GYRO_CONFIG_STATIC5 reset (585 Hz row)",
-        lambda: (
-            icm.GYRO_AAF_BITSHIFT.bits(icm.AAF_TABLE[icm.AAF_DEFAULT_GYRO_HZ][2])
-            | icm.GYRO_AAF_DELTSQR_HI.bits(icm.AAF_TABLE[icm.AAF_DEFAULT_GYRO_HZ][1] >> 8)
-        ),
+        lambda: _default_aaf(icm.Bank1.GYRO_CONFIG_STATIC5),
         0x80,
         f"{AAF} §1.1: reset 0x80 · XIO",
     ),
     (
         "icm42688p:ACCEL_CONFIG_STATIC2 reset (1163 Hz row, AAF on)",
-        lambda: icm.ACCEL_AAF_DELT.bits(icm.AAF_TABLE[icm.AAF_DEFAULT_ACCEL_HZ][0]),
+        lambda: _default_aaf(icm.Bank2.ACCEL_CONFIG_STATIC2),
         0x30,
         f"{AAF} §1.1: reset 0x30 · XIO",
     ),
     (
         "icm42688p:ACCEL_CONFIG_STATIC3 reset (1163 Hz row)",
-        lambda: icm.ACCEL_AAF_DELTSQR_LO.bits(icm.AAF_TABLE[icm.AAF_DEFAULT_ACCEL_HZ][1] & 0xFF),
+        lambda: _default_aaf(icm.Bank2.ACCEL_CONFIG_STATIC3),
         0x40,
         f"{AAF} §1.1: reset 0x40 · XIO",
     ),
     (
         "icm42688p:ACCEL_CONFIG_STATIC4 reset (1163 Hz row)",
-        lambda: (
-            icm.ACCEL_AAF_BITSHIFT.bits(icm.AAF_TABLE[icm.AAF_DEFAULT_ACCEL_HZ][2])
-            | icm.ACCEL_AAF_DELTSQR_HI.bits(icm.AAF_TABLE[icm.AAF_DEFAULT_ACCEL_HZ][1] >> 8)
-        ),
+        lambda: _default_aaf(icm.Bank2.ACCEL_CONFIG_STATIC4),
         0x62,
         f"{AAF} §1.1: reset 0x62 · XIO",
     ),

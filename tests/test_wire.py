@@ -19,7 +19,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from imud.channels import Channel
+from imud.channels import Channel, SampleFlag
 from imud.wire import (
     FLAG_CALIBRATED,
     FLAG_RESYNC,
@@ -120,6 +120,8 @@ def test_round_trip_header_fields_and_sample_flags() -> None:
     assert b.sample_flags.tolist() == sf.tolist()
     assert b.invalid(Channel.ACCEL).tolist() == [False, True, False]
     assert b.invalid(Channel.GYRO).tolist() == [False, False, False]
+    assert b.flagged(SampleFlag.ACCEL_SATURATED).tolist() == [False, False, True]
+    assert b.flagged(SampleFlag.CHIP_ALARM).tolist() == [False, False, True]
 
 
 def test_nan_survives_for_invalid_values() -> None:

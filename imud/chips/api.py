@@ -205,7 +205,6 @@ class ChipSpec(Generic[C]):
     transports: tuple[str, ...]  # bus kinds it works over: "i2c", "spi", "serial"
     channels: Channel  # what its published stream carries
     dies: tuple[Die, ...] = field(default=(Die("chip"),))
-    title: str = ""  # human name, e.g. "ICM-42688-P"
 
 
 def start_blocking(driver: Driver, clock: Clock) -> None:

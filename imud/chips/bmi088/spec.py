@@ -27,7 +27,6 @@ def _sim(cfg: Bmi088Config, clock: Clock) -> SimChip:
 
 SPEC = ChipSpec(
     name="bmi088",
-    title="BMI088",
     config_model=Bmi088Config,
     make_driver=_driver,
     make_sim=_sim,

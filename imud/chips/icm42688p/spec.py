@@ -27,7 +27,6 @@ def _sim(cfg: Icm42688pConfig, clock: Clock) -> SimChip:
 
 SPEC = ChipSpec(
     name="icm42688p",
-    title="ICM-42688-P",
     config_model=Icm42688pConfig,
     make_driver=_driver,
     make_sim=_sim,

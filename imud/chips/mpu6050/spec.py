@@ -27,7 +27,6 @@ def _sim(cfg: Mpu6050Config, clock: Clock) -> SimChip:
 
 SPEC = ChipSpec(
     name="mpu6050",
-    title="MPU6050",
     config_model=Mpu6050Config,
     make_driver=_driver,
     make_sim=_sim,
