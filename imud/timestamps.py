@@ -173,14 +173,19 @@ class SampleClock:
             (t - self._correction() - self._t_ref - self._my) / self.period + self._k_ref + self._mk
         )
 
-    def _learn_ticks(self, n: int, ticks: npt.NDArray[np.int64], mod: int) -> None:
+    def _learn_ticks(self, n: int, ticks: npt.NDArray[np.int64], mod: int, continued: bool) -> None:
         """Ticks per sample of the chip's own counter, from packets inside one batch (always
-        consecutive samples): whatever the tick's unit, it is constant on the chip's clock."""
-        if n >= 2:
+        consecutive samples), or from the last batch's newest packet when this batch continues
+        it (a chip read one sample at a time): whatever the tick's unit, it is constant on the
+        chip's clock."""
+        span, steps = 0, n - 1
+        if continued and self._last_tick is not None:
+            span, steps = (int(ticks[-1]) - self._last_tick) % mod, n
+        elif n >= 2:
             span = int(ticks[-1] - ticks[0]) % mod
-            if span and span < mod // 2:
-                tps = span / (n - 1)
-                self._tps = tps if self._tps is None else 0.9 * self._tps + 0.1 * tps
+        if span and steps and span < mod // 2:
+            tps = span / steps
+            self._tps = tps if self._tps is None else 0.9 * self._tps + 0.1 * tps
         self._last_tick = int(ticks[-1])
 
     def _tick_index(self, k_host: int, n: int, ticks: npt.NDArray[np.int64], mod: int) -> int:
@@ -290,7 +295,8 @@ class SampleClock:
         if resync and ticks is not None and ticks_modulo:
             k_new = max(self._tick_index(k_new, n, ticks, ticks_modulo), self.k_last + n)
         if ticks is not None and ticks_modulo:
-            self._learn_ticks(n, ticks, ticks_modulo)
+            continued = not resync and self.k_last >= 0 and k_new == self.k_last + n
+            self._learn_ticks(n, ticks, ticks_modulo, continued)
         first = k_new - n + 1
         lost = first - (self.k_last + 1) if self.k_last >= 0 else 0
         if resync and restart is not None and self._count:

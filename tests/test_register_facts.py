@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import ast
 import enum
+import importlib
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
@@ -33,28 +33,10 @@ from imud.chips.bits import BitField
 from imud.chips.bmi088 import registers as bmi
 from imud.chips.icm42688p import registers as icm
 from imud.chips.mpu6050 import registers as mpu
+from tests.regfacts import ROWS, F, Fact
 
 ROOT = Path(__file__).resolve().parents[1]
 CHIPS_DIR = ROOT / "imud" / "chips"
-ROWS = "rows"  # Fact.key: the set of a table's keys
-
-
-@dataclass(frozen=True)
-class Fact:
-    name: str  # attribute path in the chip's registers module, e.g. "Register.PWR_MGMT_1"
-    value: object  # the datasheet literal (a BitField is compared by its mask)
-    cite: str  # document, revision, section; the drivers the sheet quotes
-    key: object = None  # one row of a table (name[key]), or ROWS for the table's keys
-    at_least: bool = False  # a minimum wait: the map may add margin
-
-    @property
-    def id(self) -> str:
-        if self.key is None:
-            return self.name
-        return f"{self.name}.keys" if self.key == ROWS else f"{self.name}[{self.key!r}]"
-
-
-F = Fact  # short, for the tables
 
 
 # =================================================================================================
@@ -513,6 +495,12 @@ CHIPS: dict[str, tuple[ModuleType, list[Fact]]] = {
     "icm42688p": (icm, ICM42688P_FACTS),
     "bmi088": (bmi, BMI088_FACTS),
 }
+# every other chip keeps its facts in tests/facts_<chip>.py (FACTS, cited the same way)
+for _regs in sorted(CHIPS_DIR.glob("*/registers.py")):
+    _chip = _regs.parent.name
+    if _chip not in CHIPS and (ROOT / "tests" / f"facts_{_chip}.py").is_file():
+        _facts = importlib.import_module(f"tests.facts_{_chip}")
+        CHIPS[_chip] = (importlib.import_module(f"imud.chips.{_chip}.registers"), _facts.FACTS)
 
 
 # -------------------------------------------------------------------------------------------------

@@ -109,3 +109,24 @@ def test_rebase_counts_the_outage_of_a_reinitialised_chip() -> None:
     assert st2.lost_before == pytest.approx(300, abs=2)  # type: ignore[attr-defined]
     assert st2.first_seq > last  # type: ignore[attr-defined]
     assert st2.t_ns[0] > st.t_ns[-1]  # type: ignore[attr-defined]
+
+
+def test_a_counter_read_one_sample_at_a_time_counts_a_gap_exactly() -> None:
+    """A chip without a FIFO (a data counter, one sample per read): the counter's ticks per sample
+    are learnt across reads, so a gap is counted from the counter, not from host time. Here the
+    host brackets after the gap are a period off (the read was late by 1.4 periods), yet the
+    counter says 5 samples are missing, and 5 it is."""
+    p = 500_000  # 2 kHz
+    clock = SampleClock(p)
+    tick = 65_530  # about to wrap at 2**16
+    t = 1_000_000_000
+    for _ in range(50):
+        t += p
+        clock.update(1, t - 100_000, t + 50_000, ticks=np.array([tick]), ticks_modulo=65_536)
+        tick = (tick + 1) % 65_536
+    tick = (tick + 5) % 65_536  # samples 50..54 never read
+    t += 6 * p + int(1.4 * p)
+    st = clock.update(
+        1, t - 100_000, t + 50_000, resync=True, ticks=np.array([tick]), ticks_modulo=65_536
+    )
+    assert st.lost_before == 5

@@ -43,9 +43,15 @@ class SpiBus(_Strict):
 
 
 class SerialBus(_Strict):
+    """A UART or RS422 link (through a USB adapter or the board's own UART), 8N1."""
+
     kind: Literal["serial"]
-    port: str
+    port: str = Field(description="device path, e.g. /dev/ttyUSB0 or /dev/serial/by-id/...")
     baud: int = Field(115_200, gt=0)
+
+    @property
+    def clock_hz(self) -> int:
+        return self.baud
 
     @property
     def key(self) -> str:
@@ -59,15 +65,17 @@ class SerialBus(_Strict):
 class SimBus(_Strict):
     """A simulated bus: devices naming the same `bus` share it (and its worker thread).
 
-    `transport = "i2c"` puts the chip at `address`; `"spi"` on chip select `cs`. `speed_hz` is
-    the clock the config checks rates against, as for a real bus."""
+    `transport = "i2c"` puts the chip at `address`; `"spi"` on chip select `cs`; `"serial"`
+    behind a pseudo-terminal of its own at `baud`. `speed_hz` (I2C, SPI) and `baud` (serial)
+    are what the config checks rates against, as for a real bus."""
 
     kind: Literal["sim"]
     bus: str = "sim0"
-    transport: Literal["i2c", "spi"] = "i2c"
+    transport: Literal["i2c", "spi", "serial"] = "i2c"
     address: int = Field(0x68, ge=0x03, le=0x77)
     cs: int = Field(0, ge=0, le=15)
     speed_hz: int | None = Field(None, gt=0, description="default: 400 kHz I2C, 10 MHz SPI")
+    baud: int = Field(115_200, gt=0, description="serial only: the link's bit rate")
 
     @property
     def key(self) -> str:
@@ -75,12 +83,16 @@ class SimBus(_Strict):
 
     @property
     def clock_hz(self) -> int:
+        if self.transport == "serial":
+            return self.baud
         return self.speed_hz or (400_000 if self.transport == "i2c" else 10_000_000)
 
     @property
     def slot(self) -> tuple[str, ...]:
         if self.transport == "spi":
             return (self.key, f"cs{self.cs}")
+        if self.transport == "serial":
+            return (self.key, "serial")
         return (self.key, f"0x{self.address:02x}")
 
 
@@ -90,10 +102,12 @@ Bus = Annotated[I2cBus | SpiBus | SerialBus | SimBus, Field(discriminator="kind"
 def describe(bus: I2cBus | SpiBus | SerialBus | SimBus) -> str:
     """Short human form for status tables and logs."""
     if isinstance(bus, SimBus):
-        where = f"cs{bus.cs}" if bus.transport == "spi" else f"0x{bus.address:02x}"
+        where = {"spi": f"cs{bus.cs}", "serial": f"{bus.baud}bd"}.get(
+            bus.transport, f"0x{bus.address:02x}"
+        )
         return f"sim-{bus.transport}:{bus.bus}@{where}"
     if isinstance(bus, I2cBus):
         return f"i2c:{bus.key}@0x{bus.address:02x}"
     if isinstance(bus, SpiBus):
         return f"spi:{bus.path}"
-    return f"{bus.kind}:{bus.key}"
+    return f"serial:{bus.port}@{bus.baud}bd"

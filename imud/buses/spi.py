@@ -22,7 +22,11 @@ class SpiDevLike(Protocol):
     mode: int
     max_speed_hz: int
 
-    def xfer2(self, values: list[int]) -> list[int]: ...
+    def xfer2(
+        self, values: list[int], speed_hz: int = 0, delay_usecs: int = 0, bits_per_word: int = 0
+    ) -> list[int]:
+        """One chip-select frame; `speed_hz` 0 = `max_speed_hz`; `delay_usecs` before the chip
+        select rises."""
 
     def close(self) -> None: ...
 

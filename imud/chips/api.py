@@ -12,7 +12,13 @@ probe one with `getattr`:
 - `Driver`: bytes on a bus to a `RawBatch` of raw channels, with either host-time read brackets
   (`FifoRead`: the pipeline fits the chip's sample clock to them) or stamps of its own (`Stamped`:
   a chip of several dies on several clocks stamps each die itself);
-- `SimChip`/`SimDie`: register-level simulators behind the same bus interfaces as silicon.
+- `SimChip`: register-level simulators behind the same bus interfaces as silicon, one die each
+  (`SimDie`: byte registers; `SpiFrameDie`: a chip with its own SPI framing; `StreamDie`: a
+  serial chip behind a pseudo-terminal).
+
+A driver gets one link per die: a `RegisterDevice` (I2C, or SPI with the InvenSense/Bosch
+address-byte convention), the `SpiDevLike` itself when its spec says `raw_spi` (a chip with its own
+SPI framing, e.g. 16-bit words), or a `SerialPort` on a serial bus.
 """
 
 from __future__ import annotations
@@ -20,7 +26,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
@@ -32,8 +38,14 @@ from imud.sim.settings import SimSettings
 from imud.timestamps import Stamped
 
 if TYPE_CHECKING:
+    from typing import TypeAlias
+
     from imud.buses.registers import RegisterDevice
+    from imud.buses.serial import SerialPort
+    from imud.buses.spi import SpiDevLike
     from imud.clock import Clock
+
+    Link: TypeAlias = RegisterDevice | SpiDevLike | SerialPort
 
 
 class DeviceBase(BaseModel):
@@ -150,6 +162,7 @@ class Driver(Protocol):
 
 
 # --- simulators --------------------------------------------------------------------------------
+@runtime_checkable
 class SimDie(Protocol):
     """A register-level simulator of one die, attached to a simulated bus."""
 
@@ -160,6 +173,28 @@ class SimDie(Protocol):
     def spi_select(self) -> bool:
         """A chip-select edge. False: this transfer only woke the die's SPI interface (a Bosch
         accel die starts in I2C mode), so it is not answered."""
+
+
+@runtime_checkable
+class SpiFrameDie(Protocol):
+    """A simulated die with its own SPI framing: it sees whole chip-select frames."""
+
+    def spi_frame(self, tx: bytes, speed_hz: int) -> bytes:
+        """One frame (chip select low, `tx` clocked out at `speed_hz`): the bytes on MISO."""
+
+
+@runtime_checkable
+class StreamDie(Protocol):
+    """A simulated serial chip: bytes in from the host, bytes out on its own schedule."""
+
+    def receive(self, data: bytes) -> None:
+        """Bytes the host sent (in order, possibly split anywhere)."""
+
+    def transmit(self, now_ns: int) -> bytes:
+        """Every byte whose last bit has left the chip by `now_ns`, at the link's bit rate."""
+
+    def next_transmit_ns(self) -> int | None:
+        """When the next byte will have been sent (None: nothing scheduled)."""
 
 
 @dataclass(slots=True)
@@ -175,7 +210,7 @@ class SimChip(Protocol):
     """All dies of one simulated chip, in the order of its spec's `dies`, and its truth."""
 
     @property
-    def dies(self) -> Sequence[SimDie]: ...
+    def dies(self) -> Sequence[SimDie | SpiFrameDie | StreamDie]: ...
 
     def drain_truth(self) -> Truth | None:
         """Truth since the last call (None: nothing new, or truth recording is off)."""
@@ -200,11 +235,22 @@ class ChipSpec(Generic[C]):
 
     name: str  # the config's `chip` value
     config_model: type[C]
-    make_driver: Callable[[C, Sequence[RegisterDevice], Clock], Driver]  # one link per die
+    make_driver: Callable[[C, Sequence[Link], Clock], Driver]  # one link per die
     make_sim: Callable[[C, Clock], SimChip]
     transports: tuple[str, ...]  # bus kinds it works over: "i2c", "spi", "serial"
     channels: Channel  # what its published stream carries
     dies: tuple[Die, ...] = field(default=(Die("chip"),))
+    raw_spi: bool = False  # its own SPI framing: the driver gets the SpiDevLike, not registers
+
+
+def register_links(links: Sequence[Link]) -> list[RegisterDevice]:
+    """The links of a chip that speaks byte registers on every die (a spec's driver factory)."""
+    from imud.buses.registers import RegisterDevice
+
+    out = [link for link in links if isinstance(link, RegisterDevice)]
+    if len(out) != len(links):
+        raise TypeError("this chip needs byte-register links (I2C, or SPI without raw_spi)")
+    return out
 
 
 def start_blocking(driver: Driver, clock: Clock) -> None:

@@ -56,6 +56,20 @@ class ErrorSettings(_Strict):
     gyro_temp_drift_dps_per_c: Vec3 | None = None
 
 
+class SerialFaults(_Strict):
+    """Damage a simulated serial link does to the bytes a chip sends (each draw from the seed).
+
+    The chip's simulator applies them and counts what it damaged, so a test can check that the
+    driver counts exactly that."""
+
+    corrupt_rate: float = Field(0.0, ge=0.0, le=1.0, description="per byte: one bit flipped")
+    drop_rate: float = Field(0.0, ge=0.0, le=1.0, description="per byte: never arrives")
+    garbage_rate: float = Field(
+        0.0, ge=0.0, le=1.0, description="per message: a burst of random bytes before it"
+    )
+    garbage_bytes: int = Field(16, ge=1, le=4096, description="length of a garbage burst")
+
+
 class SimSettings(_Strict):
     """How a simulated device behaves; only allowed on a device whose bus has `kind = "sim"`."""
 
@@ -73,3 +87,4 @@ class SimSettings(_Strict):
     temperature_limits_c: tuple[float, float] = (-40.0, 85.0)
     nak_rate: float = Field(0.0, ge=0.0, le=1.0, description="fraction of bus transfers NAKed")
     errors: ErrorSettings = Field(default_factory=ErrorSettings)
+    serial: SerialFaults = Field(default_factory=SerialFaults)

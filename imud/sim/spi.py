@@ -35,7 +35,9 @@ class SimSpiDev:
         self._lock = threading.Lock()
         self.transfers = 0
 
-    def xfer2(self, values: list[int]) -> list[int]:
+    def xfer2(
+        self, values: list[int], speed_hz: int = 0, delay_usecs: int = 0, bits_per_word: int = 0
+    ) -> list[int]:
         if not values:
             return []
         with self._lock:

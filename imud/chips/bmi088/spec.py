@@ -3,18 +3,21 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
-from imud.buses.registers import RegisterDevice
 from imud.channels import Channel
-from imud.chips.api import ChipSpec, Die, Driver, SimChip
+from imud.chips.api import ChipSpec, Die, Driver, SimChip, register_links
 from imud.chips.bmi088.config import Bmi088Config
 from imud.clock import Clock
 
+if TYPE_CHECKING:
+    from imud.chips.api import Link
 
-def _driver(cfg: Bmi088Config, links: Sequence[RegisterDevice], clock: Clock) -> Driver:
+
+def _driver(cfg: Bmi088Config, links: Sequence[Link], clock: Clock) -> Driver:
     from imud.chips.bmi088.driver import Bmi088Driver
 
-    acc, gyr = links
+    acc, gyr = register_links(links)
     return Bmi088Driver(cfg, acc, gyr, clock)
 
 

@@ -3,18 +3,21 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
-from imud.buses.registers import RegisterDevice
 from imud.channels import Channel
-from imud.chips.api import ChipSpec, Driver, SimChip
+from imud.chips.api import ChipSpec, Driver, SimChip, register_links
 from imud.chips.icm42688p.config import Icm42688pConfig
 from imud.clock import Clock
 
+if TYPE_CHECKING:
+    from imud.chips.api import Link
 
-def _driver(cfg: Icm42688pConfig, links: Sequence[RegisterDevice], clock: Clock) -> Driver:
+
+def _driver(cfg: Icm42688pConfig, links: Sequence[Link], clock: Clock) -> Driver:
     from imud.chips.icm42688p.driver import Icm42688pDriver
 
-    (dev,) = links
+    (dev,) = register_links(links)
     return Icm42688pDriver(cfg, dev, clock)
 
 

@@ -3,18 +3,21 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
-from imud.buses.registers import RegisterDevice
 from imud.channels import Channel
-from imud.chips.api import ChipSpec, Driver, SimChip
+from imud.chips.api import ChipSpec, Driver, SimChip, register_links
 from imud.chips.mpu6050.config import Mpu6050Config
 from imud.clock import Clock
 
+if TYPE_CHECKING:
+    from imud.chips.api import Link
 
-def _driver(cfg: Mpu6050Config, links: Sequence[RegisterDevice], clock: Clock) -> Driver:
+
+def _driver(cfg: Mpu6050Config, links: Sequence[Link], clock: Clock) -> Driver:
     from imud.chips.mpu6050.driver import Mpu6050Driver
 
-    (dev,) = links
+    (dev,) = register_links(links)
     return Mpu6050Driver(cfg, dev, clock)
 
 
