@@ -12,6 +12,7 @@ from imud.chips.api import ChipSpec
 from imud.chips.bmi088.spec import SPEC as BMI088
 from imud.chips.icm42688p.spec import SPEC as ICM42688P
 from imud.chips.mpu6050.spec import SPEC as MPU6050
+from imud.chips.stim300.spec import SPEC as STIM300
 
 CHIPS: dict[str, ChipSpec[Any]] = {}
 generation = 0  # bumped by every registration: config models built before are stale
@@ -36,5 +37,5 @@ def unregister(name: str) -> None:
     generation += 1
 
 
-for _spec in (MPU6050, ICM42688P, BMI088):
+for _spec in (MPU6050, ICM42688P, BMI088, STIM300):
     register(_spec)

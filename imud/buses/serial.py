@@ -8,11 +8,12 @@ the same function opens, so the driver under test is the driver that runs on `/d
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 from imud.errors import BusError, open_error
 
 
+@runtime_checkable
 class SerialPort(Protocol):
     """What drivers may call on a `serial.Serial`. Opened non-blocking (`timeout = 0`): a read
     returns what has arrived; a driver waiting for an answer sets `timeout` itself."""

@@ -1,0 +1,1 @@
+"""Safran (Sensonor) STIM300: a tactical-grade IMU streaming RS422 datagrams in normal mode."""

@@ -1,0 +1,267 @@
+"""STIM300 normal-mode stream driver (docs/chips/stim300.md).
+
+The unit streams one datagram per sample: the driver reads whatever bytes have arrived, finds the
+datagrams in them by identifier and CRC (`datagram.Framer`), and hands the pipeline counts with
+host-time brackets moved back to the sample instant by the datagram's own latency field and its
+time on the wire. The 8-bit sample counter (it counts the unit's 2000 Hz samples) makes a gap
+countable exactly: a batch never spans one, so the pipeline sees each gap with the counter.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from imud.buses.serial import SerialPort
+from imud.channels import Channel
+from imud.chips.api import ChipCounter, DriverCounters, FifoRead, RawBatch, RawChannel
+from imud.chips.stim300.config import BITS_PER_CHAR, Stim300Config
+from imud.chips.stim300.datagram import Framer, find_any, int16, int24, layout, uint16
+from imud.chips.stim300.registers import (
+    ACCEL_LSB_G,
+    COUNTER_MODULO,
+    FIRST_DATAGRAM_MAX_NS,
+    GYRO_LSB_DPS,
+    GYRO_SATURATION_DPS,
+    INCL_LSB_G,
+    INCL_RANGE_G,
+    TEMP_LSB_C,
+    DatagramId,
+    Status,
+)
+from imud.clock import Clock
+from imud.errors import BusError, DeviceIdentityError
+
+STANDARD_GRAVITY = 9.80665  # the datasheet's k0, m/s^2 per g
+HOST_BUFFER_BYTES = 4096  # Linux's tty receive buffer: what a stalled reader can lose beyond
+POLL_NS = 5_000_000
+START_TIMEOUT_NS = FIRST_DATAGRAM_MAX_NS + 1_200_000_000  # first datagram, with margin
+START_STEP_NS = 20_000_000
+READ_MAX = 1 << 16
+# the sample's data are not valid: its cluster's values become NaN (the rest is an alarm only)
+_INVALID = int(Status.STARTUP | Status.SYSTEM_INTEGRITY | Status.CHANNEL_ERROR)
+_BITS = [(b.name or str(int(b)), int(b)) for b in Status]
+
+
+@dataclass(slots=True)
+class Segment:
+    """Datagrams with consecutive counters; `gap_before`: the counter jumped before the first."""
+
+    rows: npt.NDArray[np.uint8]
+    gap_before: bool
+
+
+class Stim300Driver:
+    def __init__(self, cfg: Stim300Config, port: SerialPort, clock: Clock) -> None:
+        self.cfg = cfg
+        self.port = port
+        self.clock = clock
+        self.lay = layout(cfg.datagram_id, cfg.line_termination)
+        self.framer = Framer(self.lay)
+        self.nominal_period_ns = 1e9 / cfg.odr_hz
+        self.fifo_capacity = HOST_BUFFER_BYTES // self.lay.size
+        span = self.fifo_capacity * self.nominal_period_ns
+        self.poll_interval_ns = int(min(POLL_NS, span / 4))
+        self.counters = DriverCounters()
+        self.step = cfg.counter_step
+        baud = port.baudrate
+        self.wire_ns = self.lay.size * BITS_PER_CHAR * 1e9 / baud  # a datagram on the line
+        self._held: list[Segment] = []
+        self._last_counter: int | None = None
+        self._last_latency_ns = 0
+        self.status_counts = dict.fromkeys((name for name, _ in _BITS), 0)
+        self.status_seen = 0
+        self.counter_gaps = 0
+        self.latency_max_us = 0
+        self.bytes_read = 0
+
+    # --- start ------------------------------------------------------------------------------
+    def start(self) -> Iterator[int]:
+        """Nothing to configure: wait for the stream, check it is what the config says."""
+        self.port.reset_input_buffer()
+        self.framer = Framer(self.lay)
+        self._held, self._last_counter = [], None
+        seen = b""
+        t_end = self.clock.now_ns() + START_TIMEOUT_NS
+        rows = np.zeros((0, self.lay.size), dtype=np.uint8)
+        while True:
+            data = self._read_port()
+            seen = (seen + data)[-4 * HOST_BUFFER_BYTES :]
+            rows = np.concatenate([rows, self.framer.feed(data)])
+            if len(rows) >= 2 or self.clock.now_ns() > t_end:
+                break
+            yield START_STEP_NS
+        if len(rows) == 0:
+            raise DeviceIdentityError(self._no_stream(seen))
+        c = rows[:, self.lay.counter].astype(np.int64)
+        step = int(c[1] - c[0]) % COUNTER_MODULO if len(c) >= 2 else self.step
+        if step != self.step:
+            rate = 2000 / step if step else math.inf
+            raise DeviceIdentityError(
+                f"the STIM300's sample counter steps by {step} per datagram, i.e. it samples at "
+                f"{rate:g} Hz; the config says odr_hz = {self.cfg.odr_hz:g} (counter step "
+                f"{self.step}): set odr_hz = {rate:g}"
+            )
+        self._take(rows)  # published with the first read: nothing received is dropped
+
+    def _no_stream(self, seen: bytes) -> str:
+        where = f"{self.port.port} at {self.port.baudrate} baud"
+        want = f"0x{self.lay.ident:02X} ({self.cfg.datagram})"
+        if not seen:
+            return (
+                f"no bytes from the STIM300 on {where} in {START_TIMEOUT_NS / 1e9:g} s: check its "
+                "power, the RS422 wiring (TX+/TX- to the adapter's RX+/RX-) and the port"
+            )
+        other = find_any(seen, self.cfg.line_termination)
+        if other is not None:
+            name = DatagramId(other).name.lower()
+            return (
+                f"the STIM300 on {where} sends 0x{other:02X} ({name}) datagrams, the config "
+                f'says {want}: set datagram = "{name}"'
+            )
+        if find_any(seen, not self.cfg.line_termination) is not None:
+            return (
+                f"the STIM300 on {where} sends datagrams "
+                f"{'without' if self.cfg.line_termination else 'with'} CR LF: set "
+                f"line_termination = {str(not self.cfg.line_termination).lower()}"
+            )
+        return (
+            f"{len(seen)} bytes arrived on {where} but no valid STIM300 datagram: check bus.baud "
+            f"(the unit's bit rate) and that the unit is in normal mode; first bytes: "
+            f"{seen[:16].hex(' ')}"
+        )
+
+    # --- read -------------------------------------------------------------------------------
+    def _read_port(self) -> bytes:
+        try:
+            data = self.port.read(READ_MAX)
+        except OSError as e:
+            raise BusError(e.errno, f"read {self.port.port}: {e}") from e
+        except Exception as e:  # pyserial's SerialException (device gone) is not an OSError
+            raise BusError(0, f"read {self.port.port}: {e}") from e
+        self.bytes_read += len(data)
+        return bytes(data)
+
+    def _take(self, rows: npt.NDArray[np.uint8]) -> None:
+        """Split new datagrams where the counter jumps; queue them."""
+        if not len(rows):
+            return
+        c = rows[:, self.lay.counter].astype(np.int64)
+        prev = np.empty_like(c)
+        prev[1:] = c[:-1]
+        prev[0] = c[0] - self.step if self._last_counter is None else self._last_counter
+        jump = np.flatnonzero((c - prev) % COUNTER_MODULO != self.step)
+        self._last_counter = int(c[-1])
+        self.counter_gaps += len(jump)
+        cuts = [0, *[int(j) for j in jump if j > 0], len(rows)]
+        for i, (a, b) in enumerate(itertools.pairwise(cuts)):
+            gap = bool(i > 0 or (len(jump) and jump[0] == 0))
+            self._held.append(Segment(rows[a:b], gap))
+
+    def read(self) -> RawBatch:
+        t0 = self.clock.now_ns()
+        data = self._read_port()
+        t1 = self.clock.now_ns()
+        before = self.framer.stats.crc_errors
+        self._take(self.framer.feed(data))
+        self.counters.bad_transfers += self.framer.stats.crc_errors - before
+        back = round(self.wire_ns)  # newest datagram: sample -> latency -> on the wire -> read
+        if not self._held:
+            b = back + self._last_latency_ns
+            return self._batch(np.zeros((0, self.lay.size), np.uint8), t0 - b, t1 - b, False)
+        seg = self._held.pop(0)
+        # merge queued segments that continue this one (a batch may not span a counter gap)
+        while self._held and not self._held[0].gap_before:
+            seg = Segment(np.concatenate([seg.rows, self._held.pop(0).rows]), seg.gap_before)
+        lat = uint16(seg.rows[-1:], self.lay.latency)
+        self._last_latency_ns = int(lat[0]) * 1000
+        self.latency_max_us = max(self.latency_max_us, int(lat[0]))
+        b = back + self._last_latency_ns
+        newest = not self._held  # later samples wait behind a gap: this batch is not the newest
+        return self._batch(seg.rows, t0 - b, t1 - b, seg.gap_before, phase=newest)
+
+    def _batch(
+        self,
+        rows: npt.NDArray[np.uint8],
+        t_before: int,
+        t_after: int,
+        gap: bool,
+        phase: bool = True,
+    ) -> RawBatch:
+        lay, n = self.lay, len(rows)
+        counter = ChipCounter(rows[:, lay.counter].astype(np.int64), COUNTER_MODULO)
+        timing = FifoRead(int(t_before), int(t_after), resync=gap, fifo_full=not phase,
+                          counter=counter)  # fmt: skip
+        gyro_status = rows[:, lay.gyro_status].astype(np.int64)
+        statuses = [gyro_status]
+        deg = math.pi / 180.0
+        channels = {
+            Channel.GYRO: RawChannel(
+                int24(rows, lay.gyro),
+                GYRO_LSB_DPS * deg,
+                GYRO_SATURATION_DPS / GYRO_LSB_DPS,
+                _invalid(gyro_status),
+            )
+        }
+        if lay.acc is not None and lay.acc_status is not None:
+            lsb = ACCEL_LSB_G[self.cfg.accel_range_g]
+            st = rows[:, lay.acc_status].astype(np.int64)
+            statuses.append(st)
+            channels[Channel.ACCEL] = RawChannel(
+                int24(rows, lay.acc), lsb * STANDARD_GRAVITY,
+                self.cfg.accel_range_g / lsb, _invalid(st),
+            )  # fmt: skip
+        if lay.incl is not None and lay.incl_status is not None:
+            st = rows[:, lay.incl_status].astype(np.int64)
+            statuses.append(st)
+            channels[Channel.INCLINATION] = RawChannel(
+                int24(rows, lay.incl), INCL_LSB_G * STANDARD_GRAVITY,
+                INCL_RANGE_G / INCL_LSB_G, _invalid(st),
+            )  # fmt: skip
+        if lay.temps:
+            # the gyro cluster's three sensors, averaged: the chip temperature of wire format v2
+            t = int16(rows, lay.temps[0]).mean(axis=1)
+            for at in lay.temps:
+                statuses.append(rows[:, at + 6].astype(np.int64))
+            st = rows[:, lay.temps[0] + 6].astype(np.int64)
+            channels[Channel.TEMPERATURE] = RawChannel(t, TEMP_LSB_C, None, _invalid(st))
+        status = np.bitwise_or.reduce(np.stack(statuses), axis=0) if n else gyro_status
+        alarm = status != 0
+        if n and bool(alarm.any()):
+            self._count_status(status)
+        return RawBatch(n, channels, timing, alarm if bool(alarm.any()) else None)
+
+    def _count_status(self, status: npt.NDArray[np.int64]) -> None:
+        for name, bit in _BITS:
+            self.status_counts[name] += int(np.count_nonzero(status & bit))
+        self.status_seen |= int(np.bitwise_or.reduce(status))
+
+    def stop(self) -> None:
+        with contextlib.suppress(Exception):  # best effort: the port may be gone already
+            self.port.close()
+
+    def chip_status(self) -> dict[str, Any]:
+        s = self.framer.stats
+        return {
+            "datagram": f"0x{self.lay.ident:02X} {self.cfg.datagram}",
+            "datagrams": s.datagrams,
+            "crc_errors": s.crc_errors,
+            "resyncs": s.resyncs,
+            "skipped_bytes": s.skipped_bytes,
+            "counter_gaps": self.counter_gaps,
+            "status_bits": [name for name, bit in _BITS if self.status_seen & bit],
+            "status_counts": {k: v for k, v in self.status_counts.items() if v},
+            "latency_max_us": self.latency_max_us,
+        }
+
+
+def _invalid(status: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_] | None:
+    bad = (status & _INVALID) != 0
+    return bad if bool(bad.any()) else None
