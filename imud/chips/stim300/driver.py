@@ -86,7 +86,7 @@ class Stim300Driver:
     def start(self) -> Iterator[int]:
         """Nothing to configure: wait for the stream, check it is what the config says."""
         self.port.reset_input_buffer()
-        self.framer = Framer(self.lay)
+        self.framer = Framer(self.lay, self.framer.stats)  # counts run on over restarts
         self._held, self._last_counter = [], None
         seen = b""
         t_end = self.clock.now_ns() + START_TIMEOUT_NS
@@ -169,9 +169,8 @@ class Stim300Driver:
         t0 = self.clock.now_ns()
         data = self._read_port()
         t1 = self.clock.now_ns()
-        before = self.framer.stats.crc_errors
         self._take(self.framer.feed(data))
-        self.counters.bad_transfers += self.framer.stats.crc_errors - before
+        self.counters.bad_transfers = self.framer.stats.crc_errors
         back = round(self.wire_ns)  # newest datagram: sample -> latency -> on the wire -> read
         if not self._held:
             b = back + self._last_latency_ns

@@ -1,0 +1,164 @@
+"""The STIM300 simulator's byte stream read by the real driver and device runner, at virtual time
+(so exact counts do not depend on the scheduler): a constant rotation reads right, the start-up
+period is flagged, and link damage costs exactly the damaged datagrams, each counted as a lost
+sample and a sequence gap.
+
+The bytes are those the simulator hands the pty in the daemon (tests/test_daemon_stim300.py runs
+them through a real pseudo-terminal); here a small port object hands them to the driver."""
+
+from __future__ import annotations
+
+import itertools
+from typing import Any
+
+import numpy as np
+import pytest
+
+from imud.channels import Channel
+from imud.chips.stim300.config import Stim300Config
+from imud.chips.stim300.driver import Stim300Driver
+from imud.chips.stim300.sim import Stim300Sim
+from imud.clock import VirtualClock
+from imud.config import parse_config
+from imud.device import DeviceRunner
+from imud.sim.settings import SerialFaults, SimSettings
+from imud.wire import decode
+
+G = 9.80665
+
+
+class SimPort:
+    """The driver's side of the link: what the simulated unit has sent by now."""
+
+    def __init__(self, sim: Stim300Sim, clock: VirtualClock, baud: int) -> None:
+        self.sim, self.clock = sim, clock
+        self.port: str | None = "sim"
+        self.baudrate = baud
+        self.timeout: float | None = 0.0
+        self.buf = b""
+
+    @property
+    def in_waiting(self) -> int:
+        self._pull()
+        return len(self.buf)
+
+    def _pull(self) -> None:
+        self.buf += self.sim.transmit(self.clock.now_ns())
+
+    def read(self, size: int = 1) -> bytes:
+        self._pull()
+        out, self.buf = self.buf[:size], self.buf[size:]
+        return out
+
+    def write(self, data: bytes, /) -> int | None:
+        self.sim.receive(data)
+        return len(data)
+
+    def reset_input_buffer(self) -> None:
+        self._pull()
+        self.buf = b""
+
+    def close(self) -> None:
+        pass
+
+
+def rig(sim_settings: dict[str, Any], startup_ns: int = 0, **device: Any) -> tuple[Any, ...]:
+    d = {
+        "name": "s",
+        "chip": "stim300",
+        "bus": {"kind": "sim", "transport": "serial", "baud": 1_843_200},
+        "sim": {"truth": True, **sim_settings},
+        **device,
+    }
+    cfg: Stim300Config = parse_config({"device": [d]}).device[0]
+    clock = VirtualClock()
+    s = cfg.sim or SimSettings()
+    sim = Stim300Sim(
+        s, clock, int(cfg.datagram_id), int(cfg.odr_hz), cfg.accel_range_g, 1_843_200,
+        startup_ns=startup_ns,
+    )  # fmt: skip
+    driver = Stim300Driver(cfg, SimPort(sim, clock, 1_843_200), clock)  # type: ignore[arg-type]
+    out: list[bytes] = []
+    truth: list[bytes] = []
+    runner = DeviceRunner(
+        cfg, driver, None, out.append, 0, sim=sim, publish_truth=truth.append,
+        now_ns=clock.now_ns,
+    )  # fmt: skip
+    return cfg, clock, sim, driver, runner, out, truth
+
+
+def run(clock: VirtualClock, runner: DeviceRunner, seconds: float) -> None:
+    end = clock.now_ns() + int(seconds * 1e9)
+    while clock.now_ns() < end:
+        runner.step()
+        clock.advance(max(1, runner.next_due_ns - clock.now_ns()))
+
+
+def test_a_constant_rotation_reads_right() -> None:
+    rate_dps = (30.0, -20.0, 45.0)
+    _, clock, _sim, _, runner, out, _ = rig(
+        {"motion": {"kind": "tumble", "rate_dps": list(rate_dps)}, "errors": {"ideal": True}}
+    )
+    run(clock, runner, 2.0)
+    batches = [decode(b) for b in out]
+    gyro = np.concatenate([b.channels[Channel.GYRO] for b in batches]).astype(np.float64)
+    acc = np.concatenate([b.channels[Channel.ACCEL] for b in batches]).astype(np.float64)
+    inc = np.concatenate([b.channels[Channel.INCLINATION] for b in batches]).astype(np.float64)
+    n = len(gyro)
+    assert n > 3000
+    # ARW 0.15 deg/sqrt(h) = 0.0025 deg/s/sqrt(Hz): at 2000 samples/s sigma = 0.11 deg/s per
+    # sample, 0.0025 deg/s on the mean of 2 s; 0.02 deg/s is 8 sigma
+    assert np.degrees(gyro.mean(axis=0)) == pytest.approx(rate_dps, abs=0.02)
+    assert np.linalg.norm(acc, axis=1).mean() == pytest.approx(G, abs=0.005)
+    assert np.linalg.norm(inc, axis=1).mean() == pytest.approx(G, abs=0.01)
+    temp = np.concatenate([b.channels[Channel.TEMPERATURE] for b in batches])
+    assert float(temp.mean()) == pytest.approx(25.0 + (0.0 + 0.3 - 0.2) / 3, abs=0.01)
+
+
+def test_start_up_samples_are_invalid_and_counted() -> None:
+    """The start-up bit is set for 0.7 s after power-on: those samples carry no valid data, so the
+    pipeline publishes none of them and counts them lost; every later one is published."""
+    _, clock, _sim, driver, runner, out, _ = rig({}, startup_ns=300_000_000)
+    run(clock, runner, 1.0)
+    st = runner.status()
+    startup = driver.chip_status()["status_counts"]["STARTUP"]
+    assert 0 < startup <= 0.3 * 2000 * 1.02
+    assert st["lost_samples"] == startup
+    batches = [decode(b) for b in out]
+    assert all(not (b.sample_flags & int(Channel.GYRO)).any() for b in batches)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_link_damage_costs_exactly_the_damaged_datagrams(seed: int) -> None:
+    faults = {"corrupt_rate": 1e-4, "drop_rate": 5e-5, "garbage_rate": 2e-3, "garbage_bytes": 23}
+    _, clock, sim, driver, runner, out, _ = rig({"seed": seed, "serial": faults})
+    run(clock, runner, 4.0)
+    sim.faults = SerialFaults()  # a clean tail: every damaged datagram is followed by a good one
+    run(clock, runner, 0.2)
+    batches = [decode(b) for b in out]
+    st = runner.status()
+    assert sim.damaged > 10 and sim.garbage_bursts > 5  # the test exercises what it claims
+    # every datagram damaged on the line is lost, and nothing else is
+    published = sum(b.count for b in batches)
+    last = batches[-1].first_seq + batches[-1].count
+    assert st["lost_samples"] == sim.damaged
+    assert published + st["lost_samples"] == last - batches[0].first_seq
+    # ... and shows as a sequence gap right where the daemon says
+    for a, b in itertools.pairwise(batches):
+        assert b.first_seq - (a.first_seq + a.count) == b.lost_before
+    cs = driver.chip_status()
+    assert 0 < cs["counter_gaps"] <= st["lost_samples"]  # adjacent damaged datagrams: one gap
+    assert 0 < cs["crc_errors"] <= sim.damaged
+    assert driver.counters.bad_transfers == cs["crc_errors"]
+
+
+def test_counter_step_and_latency_of_the_stream() -> None:
+    """At 250 samples/s the counter (2000 Hz samples) steps by 8; latency stays below 1000 us."""
+    _, clock, _sim, driver, runner, out, _ = rig({}, odr_hz=250, datagram="rate_acc")
+    run(clock, runner, 1.0)
+    assert runner.status()["lost_samples"] == 0
+    assert 0 < driver.chip_status()["latency_max_us"] <= 1000
+    batches = [decode(b) for b in out]
+    assert set(batches[0].channels) == {Channel.GYRO, Channel.ACCEL}
+    n = sum(b.count for b in batches)
+    assert n == pytest.approx(250, rel=0.05)
