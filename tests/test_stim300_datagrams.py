@@ -9,6 +9,7 @@ driver uses)."""
 
 from __future__ import annotations
 
+import binascii
 import os
 import tty
 from collections.abc import Iterator
@@ -58,6 +59,37 @@ def test_crc_pads_with_zero_bytes_to_whole_words() -> None:
     assert crc32(msg) != crc_by_definition(msg)
     # 0x94 has 21: three dummy bytes
     assert crc32(msg[:21]) == crc_by_definition(msg[:21] + b"\x00\x00\x00")
+
+
+def crc_via_zlib(data: bytes) -> int:
+    """The same CRC from Python's reflected CRC-32 (zlib): bit-reverse every input byte and the
+    result, and undo zlib's final XOR (CRC-32/MPEG-2 = CRC-32/BZIP2 without its final XOR)."""
+
+    def rev(x: int, bits: int) -> int:
+        return int(f"{x:0{bits}b}"[::-1], 2)
+
+    return rev(binascii.crc32(bytes(rev(b, 8) for b in data)), 32) ^ 0xFFFFFFFF
+
+
+# Datagrams written out byte by byte, their CRCs computed by hand with both methods above and
+# written down: ID, clusters, counter, latency; the dummy zero bytes are not part of them.
+HAND_CHECKED = [
+    # 0x90: gyro x +1 deg/s (0x004000), y -1 deg/s (0xFFC000), z 0; counter 0x10; 300 us
+    ("90 004000 ffc000 000000 00 10 012c", 0xD09B877E),
+    # 0x91: gyro 0; accel z +1 g on a 10 g unit (2^19 = 0x080000); counter 0x20; 200 us
+    ("91 000000 000000 000000 00 000000 000000 080000 00 20 00c8", 0x07376365),
+    # 0x94: gyro z +1 deg/s; temperatures 25 degC (0x1900 = 6400 x 2^-8); counter 5; 400 us
+    ("94 000000 000000 004000 00 1900 1900 1900 00 05 0190", 0x7C9FA6FF),
+]
+
+
+@pytest.mark.parametrize(("hexbytes", "crc"), HAND_CHECKED)
+def test_crc_of_hand_checked_datagrams(hexbytes: str, crc: int) -> None:
+    msg = bytes.fromhex(hexbytes)
+    pad = bytes(-len(msg) % 4)
+    assert crc_by_definition(msg + pad) == crc == crc_via_zlib(msg + pad)
+    assert crc32(msg) == crc
+    assert binascii.crc32(msg + pad) != crc  # Python's own CRC-32 is another CRC
 
 
 @pytest.mark.parametrize(
