@@ -28,7 +28,7 @@ def test_check_config_prints_a_short_summary() -> None:
     assert "Traceback" not in r.stderr
     lines = r.stdout.splitlines()
     assert len(lines) == 7  # headline, daemon, zenoh, one per device
-    assert lines[0] == "configs/sim.toml: valid, 4 devices"
+    assert lines[0] == "configs/sim.toml: valid, 5 devices"
     assert lines[1].startswith("daemon:") and "realtime priority 20" in lines[1]
     assert lines[2].startswith("zenoh:") and "tcp/127.0.0.1:7447" in lines[2]
     assert "peer" in lines[2] and "'imud'" in lines[2]

@@ -89,13 +89,18 @@ class SampledChip:
         self.grid_origin_ns = float(now)
         self.next_k = 1
 
+    lookahead_ns = 0  # produce this far ahead once a sample is due (a stream sent later)
+
     def advance(self) -> None:
-        """Produce every sample due up to now, in chunks."""
+        """Produce every sample due up to now, in chunks (and `lookahead_ns` beyond, for a chip
+        whose output is paced by its own clock: fewer, larger chunks cost less)."""
         if not self.sampling:
             return
         now = self.clock.now_ns()
         period = 1e9 / self.rate_hz
         k_max = math.floor((now - self.grid_origin_ns) / period)
+        if self.lookahead_ns and k_max >= self.next_k:
+            k_max = math.floor((now + self.lookahead_ns - self.grid_origin_ns) / period)
         while self.next_k <= k_max:
             k_end = min(k_max, self.next_k + CHUNK - 1)
             ks = np.arange(self.next_k, k_end + 1, dtype=np.float64)

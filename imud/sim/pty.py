@@ -22,7 +22,7 @@ from imud.clock import Clock
 
 log = logging.getLogger("imud.sim")
 
-MIN_WAKE_NS = 250_000  # the pump's finest step: output is handed over at least this coarsely
+MIN_WAKE_NS = 1_000_000  # the pump's finest step, like a USB serial adapter's 1 ms frames
 MAX_WAKE_NS = 5_000_000
 
 

@@ -58,6 +58,7 @@ INCL_FIGURES = ChipFigures(
     gyro_temp_drift_dps_per_c=0.0,
 )
 LATENCY_US = (150, 400)
+LOOKAHEAD_NS = 10_000_000  # samples made in 10 ms chunks; their bytes still leave on time
 TEMP_OFFSETS_C = (0.0, 0.3, -0.2)
 _CRC = anycrc.CRC(32, R.CRC_POLY, R.CRC_INIT, False, False, 0)
 _CLUSTER = 3 * R.AXIS_BYTES + R.STATUS_BYTES
@@ -110,6 +111,7 @@ class Stim300Sim(SampledChip):
         self.garbage_bursts = 0
         self.received = b""  # what the host sent (normal mode ignores it)
         self.sampling = True  # streams from power-on
+        self.lookahead_ns = LOOKAHEAD_NS
 
     @property
     def rate_hz(self) -> float:
