@@ -121,6 +121,12 @@ def status_view(st: dict[str, Any], endpoint: str, console: Console) -> list[Ren
             text = Text(f"{d['name']}: ", style="bold")
             text.append(line, style="red" if d["state"] == DeviceState.ERROR else "")
             out.append(cut(text, width))
+    for d in devices:
+        chip = _chip_line(d.get("chip_status") or {})
+        if chip:
+            text = Text(f"{d['name']} {d.get('chip', 'chip')}: ", style="bold")
+            text.append(chip)
+            out.append(cut(text, width))
     for b in st.get("buses", []):
         if b.get("restarts") or b.get("last_error"):
             line = f"bus {b['bus']}: process restarted {b.get('restarts', 0)} times"
@@ -128,3 +134,21 @@ def status_view(st: dict[str, Any], endpoint: str, console: Console) -> list[Ren
                 line += f"; last error: {b['last_error']}"
             out.append(cut(Text(line), width))
     return out
+
+
+def _chip_line(cs: dict[str, Any]) -> str:
+    """A chip's own health (its driver's `chip_status`) on one line: every key with something
+    to say, nested tables as key=value; nothing for zeros and empties."""
+
+    def show(v: Any) -> str:
+        if isinstance(v, dict):
+            return " ".join(f"{k}={show(x)}" for k, x in v.items())
+        if isinstance(v, list | tuple):
+            return ",".join(show(x) for x in v)
+        if isinstance(v, float):
+            return f"{v:.6g}"
+        return str(v)
+
+    return ", ".join(
+        f"{k.replace('_', ' ')} {show(v)}" for k, v in cs.items() if v not in (0, None, "", [], {})
+    )

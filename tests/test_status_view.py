@@ -1,0 +1,35 @@
+"""`imud status`'s human view shows each chip's own health (its driver's chip_status) on a line
+of its own, whatever the chip: zeros and empties left out, nested tables as key=value."""
+
+from __future__ import annotations
+
+from rich.console import Console
+
+from imud.cli.status_view import status_view
+from imud.config import parse_config
+from imud.status import initial_status
+
+
+def test_chip_status_is_shown_on_its_own_line() -> None:
+    cfg = parse_config(
+        {"device": [{"name": "stim0", "chip": "stim300",
+                     "bus": {"kind": "sim", "transport": "serial", "baud": 1843200}}]}
+    ).device[0]  # fmt: skip
+    d = initial_status(cfg)
+    d["state"] = "running"
+    d["chip_status"] = {
+        "datagram": "0xA7 rate_acc_incl_temp",
+        "crc_errors": 3,
+        "resyncs": 0,
+        "status_bits": ["STARTUP"],
+        "status_counts": {"STARTUP": 1352},
+        "calibration": {"sys": 3, "gyro": 3},
+    }
+    console = Console(width=200, record=True)
+    for r in status_view({"version": "x", "uptime_s": 1, "devices": [d]}, "tcp/x:1", console):
+        console.print(r)
+    text = console.export_text()
+    line = next(ln for ln in text.splitlines() if ln.startswith("stim0 stim300:"))
+    assert "datagram 0xA7 rate_acc_incl_temp" in line and "crc errors 3" in line
+    assert "resyncs" not in line  # zero: nothing to say
+    assert "status counts STARTUP=1352" in line and "calibration sys=3 gyro=3" in line
