@@ -35,6 +35,7 @@ class SimPort:
         self.port: str | None = "sim"
         self.baudrate = baud
         self.timeout: float | None = 0.0
+        self.is_open = True
         self.buf = b""
 
     @property
@@ -58,8 +59,11 @@ class SimPort:
         self._pull()
         self.buf = b""
 
+    def open(self) -> None:
+        self.is_open = True
+
     def close(self) -> None:
-        pass
+        self.is_open = False
 
 
 def rig(sim_settings: dict[str, Any], startup_ns: int = 0, **device: Any) -> tuple[Any, ...]:
@@ -162,3 +166,25 @@ def test_counter_step_and_latency_of_the_stream() -> None:
     assert set(batches[0].channels) == {Channel.GYRO, Channel.ACCEL}
     n = sum(b.count for b in batches)
     assert n == pytest.approx(250, rel=0.05)
+
+
+def test_a_port_that_fails_is_reopened_and_the_stream_goes_on() -> None:
+    """An unplugged USB adapter: the read fails, the driver closes the port and the runner's
+    retry reopens it; the samples the unit sent meanwhile are counted lost by its counter."""
+    _, clock, _sim, driver, runner, out, _ = rig({})
+    run(clock, runner, 0.5)
+    port = driver.port
+    real_read = port.read
+
+    def unplugged(size: int = 1) -> bytes:
+        raise OSError(5, "device reports readiness to read but returned no data")
+
+    port.read = unplugged  # type: ignore[method-assign]
+    run(clock, runner, 0.2)
+    assert not port.is_open and runner.status()["bus_errors"] >= 1
+    port.read = real_read  # type: ignore[method-assign]
+    run(clock, runner, 3.0)
+    st = runner.status()
+    assert st["state"] == "running" and port.is_open
+    batches = [decode(b) for b in out]
+    assert st["lost_samples"] == sum(b.lost_before for b in batches) > 0

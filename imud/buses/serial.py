@@ -21,6 +21,7 @@ class SerialPort(Protocol):
     port: str | None
     baudrate: int
     timeout: float | None
+    is_open: bool
 
     @property
     def in_waiting(self) -> int: ...
@@ -30,6 +31,10 @@ class SerialPort(Protocol):
     def write(self, data: bytes, /) -> int | None: ...
 
     def reset_input_buffer(self) -> None: ...
+
+    def open(self) -> None:
+        """Open the port again (same path and settings): a USB adapter that was unplugged and
+        plugged back in is a new device node."""
 
     def close(self) -> None: ...
 

@@ -85,7 +85,16 @@ class Stim300Driver:
     # --- start ------------------------------------------------------------------------------
     def start(self) -> Iterator[int]:
         """Nothing to configure: wait for the stream, check it is what the config says."""
-        self.port.reset_input_buffer()
+        if not self.port.is_open:  # closed after a failed read: the adapter may be back
+            try:
+                self.port.open()
+            except Exception as e:
+                raise BusError(0, f"cannot reopen {self.port.port}: {e}") from e
+        try:
+            self.port.reset_input_buffer()
+        except Exception as e:
+            self._close()
+            raise BusError(0, f"{self.port.port}: {e}") from e
         self.framer = Framer(self.lay, self.framer.stats)  # counts run on over restarts
         self._held, self._last_counter = [], None
         seen = b""
@@ -142,10 +151,9 @@ class Stim300Driver:
     def _read_port(self) -> bytes:
         try:
             data = self.port.read(READ_MAX)
-        except OSError as e:
-            raise BusError(e.errno, f"read {self.port.port}: {e}") from e
-        except Exception as e:  # pyserial's SerialException (device gone) is not an OSError
-            raise BusError(0, f"read {self.port.port}: {e}") from e
+        except OSError as e:  # pyserial's SerialException is one: the device is gone
+            self._close()  # the next start reopens it
+            raise BusError(e.errno or 0, f"read {self.port.port}: {e}") from e
         self.bytes_read += len(data)
         return bytes(data)
 
@@ -242,9 +250,12 @@ class Stim300Driver:
             self.status_counts[name] += int(np.count_nonzero(status & bit))
         self.status_seen |= int(np.bitwise_or.reduce(status))
 
-    def stop(self) -> None:
+    def _close(self) -> None:
         with contextlib.suppress(Exception):  # best effort: the port may be gone already
             self.port.close()
+
+    def stop(self) -> None:
+        self._close()
 
     def chip_status(self) -> dict[str, Any]:
         s = self.framer.stats
