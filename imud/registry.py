@@ -10,6 +10,7 @@ from typing import Any, get_args
 
 from imud.chips.api import ChipSpec
 from imud.chips.bmi088.spec import SPEC as BMI088
+from imud.chips.bno055.spec import SPEC as BNO055
 from imud.chips.icm42688p.spec import SPEC as ICM42688P
 from imud.chips.mpu6050.spec import SPEC as MPU6050
 from imud.chips.stim300.spec import SPEC as STIM300
@@ -37,5 +38,5 @@ def unregister(name: str) -> None:
     generation += 1
 
 
-for _spec in (MPU6050, ICM42688P, BMI088, STIM300):
+for _spec in (MPU6050, ICM42688P, BMI088, STIM300, BNO055):
     register(_spec)

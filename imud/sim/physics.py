@@ -5,6 +5,9 @@ misalignment matrix, S diagonal scale, b0 a turn-on bias, k_T a linear temperatu
 Gauss-Markov bias (bias instability), and n white noise of the datasheet density: per-sample sigma
 = density * sqrt(rate), the discrete equivalent Allan deviation sees. The chip's low-pass filter
 colouring of that noise and its group delay are not modelled.
+
+For chips that estimate orientation or sense the magnetic field: the motion's true orientation as
+a quaternion (body -> world, ENU), and the Earth's field with a board's hard and soft iron.
 """
 
 from __future__ import annotations
@@ -15,7 +18,13 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from imud.sim.settings import ErrorSettings, SimSettings, StillMotion, TumbleMotion
+from imud.sim.settings import (
+    ErrorSettings,
+    MagneticSettings,
+    SimSettings,
+    StillMotion,
+    TumbleMotion,
+)
 
 G = 9.80665
 F64 = npt.NDArray[np.float64]
@@ -56,6 +65,10 @@ class MotionModel:
         u = self._w / speed if speed else self._w
         self._uxv = np.cross(u, self._f0)  # Rodrigues terms, constant for a constant rate
         self._uuv = u * float(u @ self._f0)
+        # the true orientation (body -> world), for chips that estimate it: R(t) = R0 exp(t [w]x)
+        self._q0 = quat_from_euler_zyx(motion.roll_deg, motion.pitch_deg, motion.yaw_deg)
+        self._u = u
+        self._speed = speed
 
     def sample(self, t_s: F64) -> tuple[F64, F64]:
         n = t_s.shape[0]
@@ -66,6 +79,121 @@ class MotionModel:
         # A world-fixed vector seen from a body turning at w rotates by -|w| t about w (Rodrigues)
         a = -speed * t_s[:, None]
         return self._f0 * np.cos(a) + self._uxv * np.sin(a) + self._uuv * (1 - np.cos(a)), w
+
+    def orientation(self, t_s: F64) -> F64:
+        """True orientation at times t: unit quaternions (w, x, y, z), body -> world (ENU),
+        shape (N, 4); the same rotation `sample` applies to gravity."""
+        n = t_s.shape[0]
+        if self._speed == 0.0:
+            return np.broadcast_to(self._q0, (n, 4)).copy()
+        half = 0.5 * self._speed * t_s
+        turn = np.empty((n, 4))
+        turn[:, 0] = np.cos(half)
+        turn[:, 1:] = self._u * np.sin(half)[:, None]
+        return quat_mul(self._q0, turn)
+
+
+# --- quaternions: (w, x, y, z), Hamilton product, q rotates body vectors into the world ---------
+def quat_mul(a: F64, b: F64) -> F64:
+    """Hamilton product a b, for (4,) or (N, 4) arrays (broadcast)."""
+    aw, ax, ay, az = (a[..., i] for i in range(4))
+    bw, bx, by, bz = (b[..., i] for i in range(4))
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def quat_conj(q: F64) -> F64:
+    """The inverse rotation of a unit quaternion."""
+    out: F64 = q * np.array([1.0, -1.0, -1.0, -1.0])
+    return out
+
+
+def _cross(a: F64, b: F64) -> F64:
+    """np.cross for (..., 3) arrays, without its axis handling (a hot path of the simulators)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
+def quat_rotate(q: F64, v: F64) -> F64:
+    """v rotated by q (q v q*), for (4,)/(N, 4) quaternions and (3,)/(N, 3) vectors."""
+    w = q[..., :1]
+    r = q[..., 1:]
+    t = 2.0 * _cross(r, v)
+    out: F64 = v + w * t + _cross(r, t)
+    return out
+
+
+def quat_from_axis_angle(axis: F64, angle_rad: float) -> F64:
+    """The rotation by `angle_rad` about the unit vector `axis`."""
+    half = 0.5 * angle_rad
+    return np.concatenate([[math.cos(half)], np.asarray(axis, dtype=np.float64) * math.sin(half)])
+
+
+def quat_from_euler_zyx(roll_deg: float, pitch_deg: float, yaw_deg: float) -> F64:
+    """The quaternion of `rotation_zyx`: Rz(yaw) Ry(pitch) Rx(roll)."""
+    z = quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), math.radians(yaw_deg))
+    y = quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), math.radians(pitch_deg))
+    x = quat_from_axis_angle(np.array([1.0, 0.0, 0.0]), math.radians(roll_deg))
+    return quat_mul(quat_mul(z, y), x)
+
+
+def quat_from_matrix(m: F64) -> F64:
+    """The unit quaternion of a proper rotation matrix (Shepperd's method: stable for every
+    rotation, including half turns)."""
+    tr = float(np.trace(m))
+    cands = [tr, m[0, 0], m[1, 1], m[2, 2]]
+    i = int(np.argmax(cands))
+    if i == 0:
+        s = 2.0 * math.sqrt(1.0 + tr)
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    elif i == 1:
+        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
+    elif i == 2:
+        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
+    else:
+        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
+    out = np.array(q)
+    result: F64 = out if out[0] >= 0 else -out
+    return result
+
+
+class MagneticField:
+    """The Earth's field in the world frame (ENU) and what a magnetometer on the board reads:
+    m = A b_body + h + n (soft iron A, hard iron h, white noise n), in tesla."""
+
+    def __init__(self, s: MagneticSettings, rng: np.random.Generator) -> None:
+        b = s.field_ut * 1e-6
+        inc, dec = math.radians(s.inclination_deg), math.radians(s.declination_deg)
+        horizontal = b * math.cos(inc)  # toward magnetic north, `dec` east of true north
+        self.world = np.array([horizontal * math.sin(dec), horizontal * math.cos(dec),
+                               -b * math.sin(inc)])  # fmt: skip
+        self.soft_iron = np.asarray(s.soft_iron, dtype=np.float64)
+        self.hard_iron = np.asarray(s.hard_iron_ut, dtype=np.float64) * 1e-6
+        self.noise = s.noise_ut * 1e-6
+        self.declination_rad = dec
+        self.rng = rng
+
+    def in_body(self, q: F64) -> F64:
+        """The true field in the body frame of orientations q (N, 4): (N, 3) tesla."""
+        return quat_rotate(quat_conj(q), self.world)
+
+    def measure(self, b_body: F64) -> F64:
+        """What the magnetometer reads of the true body-frame field."""
+        m: F64 = b_body @ self.soft_iron.T + self.hard_iron
+        if self.noise > 0:
+            m = m + self.rng.normal(0.0, self.noise, m.shape)
+        return m
 
 
 class TemperatureModel:

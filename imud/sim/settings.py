@@ -70,6 +70,23 @@ class SerialFaults(_Strict):
     garbage_bytes: int = Field(16, ge=1, le=4096, description="length of a garbage burst")
 
 
+class MagneticSettings(_Strict):
+    """The Earth's field where the simulated board is, and the board's own magnetic errors, for
+    a chip with a magnetometer: hard iron (a constant offset from magnetised parts nearby) and
+    soft iron (a matrix from ferrous material that bends the field), m = A b + h + noise."""
+
+    field_ut: float = Field(50.0, ge=0.0, le=100.0, description="total intensity, microtesla")
+    inclination_deg: float = Field(
+        60.0, ge=-90.0, le=90.0, description="dip below horizontal (positive: northern hemisphere)"
+    )
+    declination_deg: float = Field(
+        0.0, ge=-180.0, le=180.0, description="magnetic north, degrees east of true north"
+    )
+    hard_iron_ut: Vec3 = (0.0, 0.0, 0.0)
+    soft_iron: tuple[Vec3, Vec3, Vec3] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    noise_ut: float = Field(0.3, ge=0.0, description="white noise per sample and axis, rms")
+
+
 class SimSettings(_Strict):
     """How a simulated device behaves; only allowed on a device whose bus has `kind = "sim"`."""
 
@@ -88,3 +105,4 @@ class SimSettings(_Strict):
     nak_rate: float = Field(0.0, ge=0.0, le=1.0, description="fraction of bus transfers NAKed")
     errors: ErrorSettings = Field(default_factory=ErrorSettings)
     serial: SerialFaults = Field(default_factory=SerialFaults)
+    magnetic: MagneticSettings = Field(default_factory=MagneticSettings)
