@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import Any, get_args
 
+from imud.chips.adis16465.spec import SPEC as ADIS16465
 from imud.chips.api import ChipSpec
 from imud.chips.bmi088.spec import SPEC as BMI088
 from imud.chips.bno055.spec import SPEC as BNO055
@@ -38,5 +39,5 @@ def unregister(name: str) -> None:
     generation += 1
 
 
-for _spec in (MPU6050, ICM42688P, BMI088, STIM300, BNO055):
+for _spec in (MPU6050, ICM42688P, BMI088, STIM300, ADIS16465, BNO055):
     register(_spec)
