@@ -27,13 +27,13 @@ def test_check_config_prints_a_short_summary() -> None:
     assert r.returncode == 0, r.stderr
     assert "Traceback" not in r.stderr
     lines = r.stdout.splitlines()
-    assert len(lines) == 3 + 5  # headline, daemon, zenoh, one per device
-    assert lines[0] == "configs/sim.toml: valid, 5 devices"
+    assert len(lines) == 3 + 7  # headline, daemon, zenoh, one per device
+    assert lines[0] == "configs/sim.toml: valid, 7 devices"
     assert lines[1].startswith("daemon:") and "realtime priority 20" in lines[1]
     assert lines[2].startswith("zenoh:") and "tcp/127.0.0.1:7447" in lines[2]
     assert "peer" in lines[2] and "'imud'" in lines[2]
     devices = {ln.split()[0]: ln for ln in lines[3:]}
-    assert list(devices) == ["imu0", "imu1", "icm0", "bmi0", "stim0"]
+    assert list(devices) == ["imu0", "imu1", "icm0", "bmi0", "stim0", "bno0", "adis0"]
     imu0 = devices["imu0"].split()
     assert imu0[:3] == ["imu0", "mpu6050", "sim-i2c:sim0@0x68"]  # hex, not 104
     assert "1000 Hz" in devices["imu0"] and "gyro ±500 °/s" in devices["imu0"]
@@ -42,6 +42,8 @@ def test_check_config_prints_a_short_summary() -> None:
     assert "32000 Hz" in devices["icm0"] and "truth" not in devices["icm0"]
     assert "sim-spi:spi1@cs0 + sim-spi:spi1@cs1" in devices["bmi0"]
     assert "sim-serial:rs422@1843200bd" in devices["stim0"] and "2000 Hz" in devices["stim0"]
+    assert "sim-serial:uart0@115200bd" in devices["bno0"] and "100 Hz" in devices["bno0"]
+    assert "sim-spi:spi2@cs0" in devices["adis0"] and "2000 Hz" in devices["adis0"]
     assert "{" not in r.stdout
 
 
@@ -56,9 +58,11 @@ def test_check_config_json_is_the_full_model() -> None:
     r = imud("check-config", "--json", "configs/sim.toml")
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout)
-    assert [d["name"] for d in doc["device"]] == ["imu0", "imu1", "icm0", "bmi0", "stim0"]
+    assert [d["name"] for d in doc["device"]] == [
+        "imu0", "imu1", "icm0", "bmi0", "stim0", "bno0", "adis0",
+    ]  # fmt: skip
     assert [d["chip"] for d in doc["device"]] == [
-        "mpu6050", "mpu6050", "icm42688p", "bmi088", "stim300",
+        "mpu6050", "mpu6050", "icm42688p", "bmi088", "stim300", "bno055", "adis16465",
     ]  # fmt: skip
     assert [d["odr_hz"] for d in doc["device"][:3]] == [1000.0, 500.0, 32000.0]
     assert (doc["device"][3]["odr_hz"], doc["device"][3]["accel_odr_hz"]) == (2000, 1600.0)

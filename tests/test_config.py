@@ -88,7 +88,10 @@ def numbers_after(text: str, marker: str) -> list[str]:
 
 def test_sim_toml_loads_with_both_devices() -> None:
     cfg = load_config(SIM_TOML)
-    assert [d.name for d in cfg.device] == ["imu0", "imu1", "icm0", "bmi0"]
+    assert [d.name for d in cfg.device] == [
+        "imu0", "imu1", "icm0", "bmi0", "stim0", "bno0", "adis0",
+    ]  # fmt: skip
+    assert [d.chip for d in cfg.device][3:] == ["bmi088", "stim300", "bno055", "adis16465"]
     imu0, imu1 = mpu(cfg, 0), mpu(cfg, 1)
     assert isinstance(imu0.bus, SimBus) and isinstance(imu1.bus, SimBus)
     assert (imu0.chip, imu1.chip) == ("mpu6050", "mpu6050")
