@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 from imud.buses.registers import RegisterDevice
 from imud.chips.api import DriverCounters
@@ -24,12 +25,15 @@ CHECK_EVERY_NS = 100_000_000
 
 @dataclass(frozen=True, slots=True)
 class RegisterSetting:
-    """Bits `set_bits` set and `clear_bits` cleared in `register` (of `bank`)."""
+    """Bits `set_bits` set and `clear_bits` cleared in `register` (of `bank`), a register of
+    `width` bits (16 for a chip of word registers), `name`d in messages when given."""
 
     register: int
     set_bits: int = 0
     clear_bits: int = 0
     bank: int = 0
+    width: int = 8
+    name: str = ""
 
     def __post_init__(self) -> None:
         # plain ints: `~` of an IntFlag complements only up to its highest defined bit
@@ -60,16 +64,18 @@ class RegisterSetting:
         return self.set_bits | self.clear_bits
 
     def apply(self, current: int) -> int:
-        return ((current & ~self.clear_bits) | self.set_bits) & 0xFF
+        return ((current & ~self.clear_bits) | self.set_bits) & ((1 << self.width) - 1)
 
     def holds(self, value: int) -> bool:
         return value & self.mask == self.set_bits
 
     def describe(self, got: int) -> str:
         where = f"bank {self.bank} " if self.bank else ""
+        what = f"{self.name} (0x{self.register:02x})" if self.name else f"0x{self.register:02x}"
+        d = self.width // 4
         return (
-            f"{where}register 0x{self.register:02x} reads 0x{got:02x}; configured bits "
-            f"0x{self.mask:02x} should read 0x{self.set_bits:02x}"
+            f"{where}register {what} reads 0x{got:0{d}x}; configured bits "
+            f"0x{self.mask:0{d}x} should read 0x{self.set_bits:0{d}x}"
         )
 
 
@@ -143,10 +149,20 @@ class RegisterPlan:
                 raise DeviceIdentityError(f"{who}{s.describe(got)} after configuring")
 
 
+class Plan(Protocol):
+    """What the checker needs of a plan: its settings and a double-read verify (a
+    `RegisterPlan`, or a chip's own plan for registers behind its own framing)."""
+
+    die: str
+    settings: list[RegisterSetting]
+
+    def verify(self, s: RegisterSetting) -> int | None: ...
+
+
 class RegisterChecker:
     """Every 100 ms, one configured register of one of the plans, round robin over all."""
 
-    def __init__(self, plans: Sequence[RegisterPlan], clock: Clock, c: DriverCounters) -> None:
+    def __init__(self, plans: Sequence[Plan], clock: Clock, c: DriverCounters) -> None:
         self.items = [(p, s) for p in plans for s in p.settings]
         self.clock, self.counters = clock, c
         self._index = 0

@@ -33,8 +33,9 @@ from imud.chips.adis16465.config import (
     bus_time_ns,
     frame_speeds,
 )
-from imud.chips.adis16465.wordplan import WordChecker, WordPlan, WordSetting
+from imud.chips.adis16465.wordplan import WordPlan
 from imud.chips.api import ChipCounter, DriverCounters, FifoRead, RawBatch, RawChannel
+from imud.chips.regplan import RegisterChecker, RegisterSetting
 from imud.clock import Clock
 from imud.errors import BusError, DeviceIdentityError
 
@@ -62,10 +63,10 @@ _MODULO = R.DATA_CNTR_MODULO
 _perf = time.perf_counter_ns
 
 
-def register_plan(c: Adis16465Config) -> list[WordSetting]:
-    def field(name: str, reg: int, f: Any, value: int) -> WordSetting:
+def register_plan(c: Adis16465Config) -> list[RegisterSetting]:
+    def field(name: str, reg: int, f: Any, value: int) -> RegisterSetting:
         bits = f.bits(value)
-        return WordSetting(name, reg, bits, f.mask & ~bits)
+        return RegisterSetting(reg, bits, f.mask & ~bits, width=16, name=name)
 
     return [
         field("DEC_RATE", Reg.DEC_RATE, R.DEC_RATE_FIELD, c.dec_rate),
@@ -162,7 +163,7 @@ class Adis16465Driver:
         self.dang_scale = d.delta_angle_scale_rad(cfg.model)
         self.dvel_scale = d.delta_velocity_scale_ms()
         self.plan = WordPlan(self, register_plan(cfg))
-        self._checker = WordChecker(self.plan, clock, self.counters)
+        self._checker = RegisterChecker([self.plan], clock, self.counters)
         self._ready_ns = 0  # perf_counter instant the next frame may start (stall)
         self.bad_checksums = 0
         self.duplicates = 0

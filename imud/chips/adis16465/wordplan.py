@@ -1,21 +1,19 @@
-"""Configured 16-bit registers as set/clear masks: written read-modify-write, verified, re-checked.
+"""Configured 16-bit registers, written read-modify-write and verified through the chip's own
+framing.
 
-The same scheme as `imud.chips.regplan` (PX4's `_register_cfg`), for a chip whose registers are
-16-bit words behind its own SPI framing: a setting names the bits it sets and clears, the other
-bits keep what the chip holds; every 100 ms one setting is read back, twice before it counts as
-changed, and a mismatch raises `RegisterMismatch` so the runner re-initialises the chip.
+The settings are `imud.chips.regplan.RegisterSetting`s of width 16 (PX4's `_register_cfg` scheme:
+the bits a setting sets and clears, the others kept), and `regplan.RegisterChecker` re-checks one
+of them every 100 ms; only the reads and writes differ from a byte-register chip, since the
+ADIS16465 pipelines its 16-bit words (one read of every setting in one pass).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Protocol
 
-from imud.chips.api import DriverCounters
-from imud.chips.regplan import CHECK_EVERY_NS
-from imud.clock import Clock
-from imud.errors import DeviceIdentityError, RegisterMismatch
+from imud.chips.regplan import RegisterSetting
+from imud.errors import DeviceIdentityError
 
 
 class WordPort(Protocol):
@@ -24,40 +22,10 @@ class WordPort(Protocol):
     def write_word(self, register: int, value: int) -> None: ...
 
 
-@dataclass(frozen=True, slots=True)
-class WordSetting:
-    """Bits `set_bits` set and `clear_bits` cleared in the 16-bit register `register`."""
-
-    name: str
-    register: int
-    set_bits: int = 0
-    clear_bits: int = 0
-
-    def __post_init__(self) -> None:
-        for f in ("register", "set_bits", "clear_bits"):
-            object.__setattr__(self, f, int(getattr(self, f)))  # plain ints, never IntFlags
-        if self.set_bits & self.clear_bits:
-            raise ValueError(f"{self.name}: a bit both set and cleared")
-
-    @property
-    def mask(self) -> int:
-        return self.set_bits | self.clear_bits
-
-    def apply(self, current: int) -> int:
-        return ((current & ~self.clear_bits) | self.set_bits) & 0xFFFF
-
-    def holds(self, value: int) -> bool:
-        return value & self.mask == self.set_bits
-
-    def describe(self, got: int) -> str:
-        return (
-            f"{self.name} (0x{self.register:02x}) reads 0x{got:04x}; configured bits "
-            f"0x{self.mask:04x} should read 0x{self.set_bits:04x}"
-        )
-
-
 class WordPlan:
-    def __init__(self, port: WordPort, settings: Sequence[WordSetting]) -> None:
+    die = ""  # one die: messages name no die
+
+    def __init__(self, port: WordPort, settings: Sequence[RegisterSetting]) -> None:
         self.port = port
         self.settings = list(settings)
 
@@ -67,7 +35,7 @@ class WordPlan:
         for s, value in zip(self.settings, current, strict=True):
             self.port.write_word(s.register, s.apply(value))
 
-    def verify(self, s: WordSetting) -> int | None:
+    def verify(self, s: RegisterSetting) -> int | None:
         """The register's value if it does not hold the setting (read twice), else None."""
         (got,) = self.port.read_words([s.register])
         if not s.holds(got):
@@ -79,27 +47,3 @@ class WordPlan:
             got = self.verify(s)
             if got is not None:
                 raise DeviceIdentityError(f"{s.describe(got)} after configuring")
-
-
-class WordChecker:
-    """Every 100 ms, one setting of the plan, round robin."""
-
-    def __init__(self, plan: WordPlan, clock: Clock, counters: DriverCounters) -> None:
-        self.plan, self.clock, self.counters = plan, clock, counters
-        self._index = 0
-        self._last_ns = clock.now_ns()
-
-    def restart(self) -> None:
-        self._last_ns = self.clock.now_ns()
-
-    def check_next(self) -> None:
-        now = self.clock.now_ns()
-        if now - self._last_ns < CHECK_EVERY_NS or not self.plan.settings:
-            return
-        self._last_ns = now
-        s = self.plan.settings[self._index]
-        self._index = (self._index + 1) % len(self.plan.settings)
-        got = self.plan.verify(s)
-        if got is not None:
-            self.counters.bad_registers += 1
-            raise RegisterMismatch(0, f"{s.describe(got)}: reinitialise")
