@@ -142,7 +142,7 @@ class Bench:
         self, name: str, virtual_s: float, warmup_s: float = 1.0, paced: bool = False
     ) -> RunResult:
         from imud.buses.i2c import I2CDevice
-        from imud.calibration import load_calibration
+        from imud.calib.file import load_calibration
         from imud.chips.mpu6050.config import Mpu6050Config
         from imud.chips.mpu6050.driver import Mpu6050Driver
         from imud.chips.mpu6050.sim import Mpu6050Sim

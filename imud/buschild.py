@@ -25,7 +25,7 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from imud.busmsg import HEADER, KIND_DATA, KIND_TRUTH, PUBLISH, STATUS
+from imud.busmsg import HEADER, PUBLISH, RAW_WANTED, STATUS
 from imud.busworker import BusWorker, build_workers
 from imud.clock import MonotonicClock
 from imud.config import parse_config
@@ -61,6 +61,21 @@ def _report(sock: socket.socket, worker: BusWorker) -> None:
             worker.stop.set()
 
 
+def _listen(sock: socket.socket, worker: BusWorker) -> None:
+    """The daemon's requests: start or stop computing a device's uncorrected stream."""
+    while not worker.stop.is_set():
+        try:
+            msg = sock.recv(64)
+        except OSError:
+            return
+        if not msg:
+            return  # the daemon closed its end; the sender notices and stops us
+        if msg[:1] == RAW_WANTED and len(msg) == HEADER.size:
+            _, index, on = HEADER.unpack(msg)
+            if index < len(worker.runners):
+                worker.runners[index].want_raw(bool(on))
+
+
 def child_main(fd: int, spec: dict[str, Any]) -> int:
     """Run one bus worker until SIGTERM (or the daemon's end of the socket closes)."""
     setup_logging(spec.get("log_level", "info"))
@@ -71,14 +86,17 @@ def child_main(fd: int, spec: dict[str, Any]) -> int:
     cfg = parse_config(spec["config"])
     offset = int(spec["offset_ns"])
 
-    def publish_for(index: int, _: Any, truth: bool, on_drop: Callable[[], None]) -> Any:
-        return _sender(sock, index, KIND_TRUTH if truth else KIND_DATA, on_drop)
+    def publish_for(index: int, _: Any, kind: int, on_drop: Callable[[], None]) -> Any:
+        return _sender(sock, index, kind, on_drop)
 
     (worker,) = build_workers(cfg, MonotonicClock(), offset, publish_for, only_bus=spec["bus"])
     for index, (next_seq, last_t_ns) in spec.get("resume", {}).items():
         worker.runners[int(index)].resume(int(next_seq), int(last_t_ns) - offset)
+    for index in spec.get("raw", []):
+        worker.runners[int(index)].want_raw(True)
     signal.signal(signal.SIGTERM, lambda *_: worker.stop.set())
     threading.Thread(target=_report, args=(sock, worker), name="status", daemon=True).start()
+    threading.Thread(target=_listen, args=(sock, worker), name="control", daemon=True).start()
     gc.collect()
     gc.freeze()  # see Daemon.run: no long collections on the acquisition path
     sys.setswitchinterval(0.0005)

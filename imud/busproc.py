@@ -11,6 +11,7 @@ relayed stream stopped, counting the samples the outage held as lost.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import signal
@@ -24,7 +25,7 @@ from collections.abc import Callable
 from typing import Any
 
 from imud.backoff import Backoff
-from imud.busmsg import HEADER, KIND_DATA, PUBLISH, RECV_MAX, STATUS
+from imud.busmsg import HEADER, KIND_DATA, PUBLISH, RAW_WANTED, RECV_MAX, STATUS
 from imud.chips.api import DeviceBase
 from imud.status import DeviceState, initial_status
 
@@ -38,6 +39,7 @@ _WIRE_HEAD = struct.Struct("<6xHQI")  # name_len, first_seq, count: the head of 
 _COUNTERS = (
     "samples", "lost_samples", "invalid_samples", "fifo_overflows", "bus_errors",
     "bad_registers", "restarts", "unexpected_errors", "publish_dropped",
+    "calibration_outside_span",
 )  # fmt: skip
 
 Put = Callable[[bytes], Any]
@@ -54,6 +56,10 @@ class RunnerProxy:
         self._restarts = 0  # process restarts
         self.next_seq: int | None = None
         self.last_t_ns = 0
+        self.on_want_raw: Callable[[bool], None] = lambda on: None
+
+    def want_raw(self, on: bool) -> None:
+        self.on_want_raw(on)
 
     def status(self) -> dict[str, Any]:
         st = dict(self._status)
@@ -107,12 +113,16 @@ class BusProcess:
         key: str,
         devices: list[DeviceBase],
         spec: dict[str, Any],
-        puts: list[tuple[Put, Put | None]],
+        puts: list[tuple[Put, Put | None, Put]],
     ) -> None:
         self.key = key
         self.runners = [RunnerProxy(d) for d in devices]
+        for i, r in enumerate(self.runners):
+            r.on_want_raw = lambda on, i=i: self.want_raw(i, on)  # type: ignore[misc]
         self.spec = {**spec, "bus": key}
-        self.puts = puts  # per device: (data put, truth put or None)
+        self.puts = puts  # per device, by kind: (data put, truth put or None, raw put)
+        self.raw_wanted: set[int] = set()
+        self._sock: socket.socket | None = None
         self.stop = threading.Event()
         self.heartbeat_ns = time.monotonic_ns()  # the relay's own progress
         self.worker_heartbeat_ns = 0  # the child's bus worker's, from its status reports
@@ -120,6 +130,16 @@ class BusProcess:
         self.backoff = Backoff(RESTART_MIN_NS, RESTART_MAX_NS)
         self.restarts = 0
         self.last_error: str | None = None
+
+    def want_raw(self, index: int, on: bool) -> None:
+        """Someone started or stopped subscribing to a device's raw stream: tell the child (a
+        child started later is told in its spec)."""
+        (self.raw_wanted.add if on else self.raw_wanted.discard)(index)
+        sock = self._sock
+        if sock is not None:
+            # a child that is gone or going cannot hear it: its successor reads the spec
+            with contextlib.suppress(OSError):
+                sock.send(HEADER.pack(RAW_WANTED, index, int(on)), socket.MSG_DONTWAIT)
 
     def _spawn(self) -> socket.socket:
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
@@ -135,7 +155,8 @@ class BusProcess:
                 pass_fds=[theirs.fileno()],
             )
         assert self.proc.stdin is not None
-        self.proc.stdin.write(json.dumps({**self.spec, "resume": resume}).encode())
+        raw = sorted(self.raw_wanted)
+        self.proc.stdin.write(json.dumps({**self.spec, "resume": resume, "raw": raw}).encode())
         self.proc.stdin.close()
         self.heartbeat_ns = self.worker_heartbeat_ns = time.monotonic_ns()
         return ours
@@ -181,12 +202,14 @@ class BusProcess:
             except OSError as e:
                 why = f"cannot start the bus process: {e}"
             else:
+                self._sock = sock
                 try:
                     why = self._relay(sock)
                 except Exception as e:  # a malformed message: a bug; restart the child
                     log.exception("relaying bus %s failed", self.key)
                     why = f"relay failed: {type(e).__name__}: {e}"
                 finally:
+                    self._sock = None
                     sock.close()
                     code = self._end_child(kill=why is not None)
             if self.stop.is_set():

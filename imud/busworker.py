@@ -18,7 +18,8 @@ from typing import Any
 
 from imud.backoff import Backoff
 from imud.buses.models import I2cBus, SerialBus, SimBus, SpiBus
-from imud.calibration import Calibration, CalibrationError, load_calibration
+from imud.busmsg import KIND_DATA, KIND_RAW, KIND_TRUTH
+from imud.calib.watch import CalibrationWatcher
 from imud.chips.api import DeviceBase, Driver, SimChip
 from imud.clock import Clock
 from imud.config import ImudConfig
@@ -49,6 +50,7 @@ class BusWorker:
     bus: Any = None
     realtime: bool = False
     reopen: Backoff = field(default_factory=lambda: Backoff(RETRY_MIN_NS, RETRY_MAX_NS))
+    calibrations: CalibrationWatcher | None = None
 
     def _bus_failed(self, e: Exception, now: int) -> None:
         wait = self.reopen.failed(now)
@@ -125,6 +127,8 @@ class BusWorker:
         name, thread.name = thread.name, f"bus {self.key}"
         if self.realtime_priority:
             self.realtime = go_realtime(self.realtime_priority, f"bus {self.key} worker")
+        if self.calibrations is not None:
+            self.calibrations.start(self.stop)
         try:
             while not self.stop.is_set():
                 wait = self.run_once()
@@ -162,17 +166,7 @@ def connector(d: DeviceBase, clock: Clock) -> Connect:
     return lambda shared: connect(d, shared, clock)
 
 
-PublishFor = Callable[[int, DeviceBase, bool, Callable[[], None]], Publish]
-
-
-def _calibration(d: DeviceBase) -> Calibration | None:
-    if d.calibration is None:
-        return None
-    try:
-        return load_calibration(d.calibration)
-    except CalibrationError as e:  # changed since the config was checked
-        log.error("%s: %s; running uncalibrated", d.name, e)
-        return None
+PublishFor = Callable[[int, DeviceBase, int, Callable[[], None]], Publish]
 
 
 def build_workers(
@@ -184,8 +178,9 @@ def build_workers(
 ) -> list[BusWorker]:
     """One worker per bus, one runner per device. Buses open in their workers.
 
-    `publish_for(index on its bus, device, truth?, on_drop)` gives each runner its publish
-    callable (a queue to the Zenoh publisher thread, or the socket to the daemon process)."""
+    `publish_for(index on its bus, device, kind (imud.busmsg KIND_*), on_drop)` gives each
+    runner its publish callables (a queue to the Zenoh publisher thread, or the socket to the
+    daemon process)."""
     workers: dict[str, BusWorker] = {}
     for d in cfg.device:
         key = d.bus.key
@@ -196,12 +191,14 @@ def build_workers(
             w = workers[key] = BusWorker(key, [], [], opener(d), clock)
             w.realtime_priority = cfg.daemon.realtime_priority
         index = len(w.runners)
-        runner = DeviceRunner(
-            d, None, _calibration(d), lambda _: None, offset_ns, now_ns=clock.now_ns
-        )
-        runner.publish = publish_for(index, d, False, runner.note_publish_drop)
+        runner = DeviceRunner(d, None, None, lambda _: None, offset_ns, now_ns=clock.now_ns)
+        runner.publish = publish_for(index, d, KIND_DATA, runner.note_publish_drop)
+        runner.publish_raw = publish_for(index, d, KIND_RAW, runner.note_publish_drop)
         if isinstance(d.bus, SimBus) and d.sim is not None and d.sim.truth:
-            runner.publish_truth = publish_for(index, d, True, lambda: None)
+            runner.publish_truth = publish_for(index, d, KIND_TRUTH, lambda: None)
         w.runners.append(runner)
         w.connectors.append(connector(d, clock))
+    for w in workers.values():
+        w.calibrations = CalibrationWatcher(list(w.runners))
+        w.calibrations.check()  # before the first sample: it is calibrated from the start
     return list(workers.values())

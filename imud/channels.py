@@ -65,7 +65,9 @@ class SampleFlag(IntFlag):
     Bits 0-15: the chip marked that channel's value invalid in this sample (bit = the channel's
     own bit); its values are NaN while the sample's other channels are published as usual.
     Bits 16-23: a sensor's raw reading was at full scale (saturated). Bit 24: the chip raised an
-    alarm for this sample (its own status word said so)."""
+    alarm for this sample (its own status word said so). Bit 25: the calibration's temperature
+    correction was clamped at the edge of the span it was fitted on (the chip was hotter or
+    colder than any calibration data)."""
 
     ACCEL_INVALID = Channel.ACCEL
     GYRO_INVALID = Channel.GYRO
@@ -82,6 +84,7 @@ class SampleFlag(IntFlag):
     MAG_SATURATED = 1 << 18
     INCLINATION_SATURATED = 1 << 19
     CHIP_ALARM = 1 << 24
+    TEMPERATURE_OUTSIDE_CALIBRATION = 1 << 25
 
 
 INVALID_MASK = 0xFFFF

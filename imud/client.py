@@ -75,9 +75,10 @@ def get_status(
     raise NoDaemon(f"no answer on {key} within {timeout:g} s")
 
 
-def data_key(device: str, prefix: str = "imud", truth: bool = False) -> str:
-    """Where a device's batches (or its simulator's ground truth) are published."""
-    return f"{prefix}/{device}/{'sim/truth' if truth else 'imu'}"
+def data_key(device: str, prefix: str = "imud", truth: bool = False, raw: bool = False) -> str:
+    """Where a device's batches are published: corrected (`imu`), uncorrected (`raw`, computed
+    only while someone subscribes), or its simulator's ground truth (`sim/truth`)."""
+    return f"{prefix}/{device}/{'sim/truth' if truth else 'raw' if raw else 'imu'}"
 
 
 def batches(
@@ -88,12 +89,14 @@ def batches(
     limit: int | None = None,
     timeout: float | None = None,
     depth: int = 16384,
+    raw: bool = False,
 ) -> Iterator[Batch]:
-    """Yield decoded batches from `<prefix>/<device>/imu` (or `/sim/truth`) as they arrive.
+    """Yield decoded batches from `<prefix>/<device>/imu` (or `/raw`, or `/sim/truth`) as they
+    arrive.
 
     `depth` batches are queued for the caller (8 s of a 32 kHz stream): a Python consumer that
     pauses (GC, a slow print) must not push back on Zenoh, which would drop batches for it."""
-    key = data_key(device, prefix, truth)
+    key = data_key(device, prefix, truth, raw)
     sub = session.declare_subscriber(key, zenoh.handlers.FifoChannel(depth))
     try:
         seen = 0

@@ -22,7 +22,6 @@ from pydantic import (
 
 from imud import registry
 from imud.buses.models import SimBus
-from imud.calibration import CalibrationError, load_calibration
 from imud.chips.api import DeviceBase
 from imud.configerrors import explain
 from imud.errors import ConfigError
@@ -161,16 +160,22 @@ def parse_config(raw: dict[str, Any], base_dir: Path | None = None) -> ImudConfi
     except ValidationError as e:
         model = config_model()
         raise ConfigError([explain(err, raw, model) for err in e.errors()]) from None
-    problems = []
-    for i, d in enumerate(cfg.device):
-        if d.calibration is not None:
-            try:
-                load_calibration(d.calibration)
-            except CalibrationError as e:
-                problems.append(f"device[{i}] {d.name!r}: calibration: {e}")
-    if problems:
-        raise ConfigError(problems)
     return cfg
+
+
+def calibration_problems(cfg: ImudConfig) -> list[str]:
+    """Why a device's calibration file cannot be applied, one line per device. Not part of
+    `parse_config`: a bad calibration file must not stop the daemon (that device runs
+    uncalibrated and says why in status, the others run normally); `imud check-config` and
+    the daemon's start-up log report them."""
+    from imud.calib.watch import load_for
+
+    out = []
+    for i, d in enumerate(cfg.device):
+        _, error = load_for(d)
+        if error is not None:
+            out.append(f"device[{i}] {d.name!r}: calibration: {error}")
+    return out
 
 
 def load_config(path: str | Path) -> ImudConfig:

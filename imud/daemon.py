@@ -26,6 +26,7 @@ import zenoh
 
 from imud import __version__
 from imud.buses.models import SimBus
+from imud.busmsg import KIND_DATA, KIND_RAW, KIND_TRUTH
 from imud.busproc import BusProcess, RunnerProxy
 from imud.busworker import BusWorker, build_workers
 from imud.chips.api import DeviceBase
@@ -54,6 +55,16 @@ def _make_publisher(session: zenoh.Session, key: str) -> tuple[Publish, zenoh.Pu
         priority=zenoh.Priority.DATA_HIGH,
     )
     return pub.put, pub
+
+
+def _on_matching(pub: zenoh.Publisher, want: Callable[[bool], None]) -> Any:
+    """Call `want(True)` while some subscriber matches the publisher, `want(False)` when none
+    does; returns the listener, which must be kept alive."""
+    listener = pub.declare_matching_listener(lambda status: want(bool(status.matching)))
+    status: Any = pub.matching_status  # a MatchingStatus; the .pyi says bool
+    if status.matching:  # a subscriber that was there before the listener
+        want(True)
+    return listener
 
 
 class Daemon:
@@ -98,15 +109,26 @@ class Daemon:
         they feed; returns what must stay alive."""
         prefix = self.cfg.zenoh.prefix
         keep: list[Any] = []
-        puts: dict[tuple[str, bool], Publish] = {}
+        puts: dict[tuple[str, int], Publish] = {}
+        raw_pubs: dict[str, zenoh.Publisher] = {}
         for d in self.cfg.device:
             put, pub = _make_publisher(session, f"{prefix}/{d.name}/imu")
-            puts[(d.name, False)] = put
+            puts[(d.name, KIND_DATA)] = put
+            keep.append(pub)
+            put, pub = _make_publisher(session, f"{prefix}/{d.name}/raw")
+            puts[(d.name, KIND_RAW)] = put
+            raw_pubs[d.name] = pub
             keep.append(pub)
             if isinstance(d.bus, SimBus) and d.sim is not None and d.sim.truth:
                 put, pub = _make_publisher(session, f"{prefix}/{d.name}/sim/truth")
-                puts[(d.name, True)] = put
+                puts[(d.name, KIND_TRUTH)] = put
                 keep.append(pub)
+        self._build_workers(puts, offset_ns)
+        for r in self.runners:  # the raw stream is computed only while someone subscribes
+            keep.append(_on_matching(raw_pubs[r.cfg.name], r.want_raw))
+        return keep
+
+    def _build_workers(self, puts: dict[tuple[str, int], Publish], offset_ns: int) -> None:
         if self.cfg.daemon.bus_processes:
             spec = {
                 "config": self.cfg.model_dump(mode="json"),
@@ -116,25 +138,26 @@ class Daemon:
             by_bus: dict[str, list[DeviceBase]] = {}
             for d in self.cfg.device:
                 by_bus.setdefault(d.bus.key, []).append(d)
+
+            def kinds(d: DeviceBase) -> tuple[Publish, Publish | None, Publish]:
+                n = d.name
+                return puts[(n, KIND_DATA)], puts.get((n, KIND_TRUTH)), puts[(n, KIND_RAW)]
+
             self.workers = [
-                BusProcess(
-                    key, ds, spec, [(puts[(d.name, False)], puts.get((d.name, True))) for d in ds]
-                )
-                for key, ds in by_bus.items()
+                BusProcess(key, ds, spec, [kinds(d) for d in ds]) for key, ds in by_bus.items()
             ]
-            return keep
+            return
         rt = self.cfg.daemon.realtime_priority
         publisher = self.publisher = PublisherThread(
             realtime_priority=max(1, rt - 1) if rt else None
         )
         publisher.start()
 
-        def publish_for(_: int, d: DeviceBase, truth: bool, on_drop: Callable[[], None]) -> Publish:
-            put = puts[(d.name, truth)]
+        def publish_for(_: int, d: DeviceBase, kind: int, on_drop: Callable[[], None]) -> Publish:
+            put = puts[(d.name, kind)]
             return lambda payload: publisher.submit(put, payload, on_drop)
 
         self.workers = list(build_workers(self.cfg, self.clock, offset_ns, publish_for))
-        return keep
 
     def _answer(self, q: zenoh.Query, body: dict[str, Any]) -> None:
         with q:

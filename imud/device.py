@@ -19,14 +19,14 @@ import numpy.typing as npt
 
 from imud.backoff import Backoff
 from imud.buses.models import describe
-from imud.calibration import Calibration
+from imud.calib.model import CalibrationModel
 from imud.channels import INVALID_MASK, Channel
 from imud.chips.api import DeviceBase, Driver, SimChip
 from imud.errors import BusError, DeviceIdentityError, RegisterMismatch
 from imud.pipeline import Pipeline, SampleBatch
 from imud.status import DeviceState, initial_status
 from imud.timestamps import SampleClock
-from imud.wire import FLAG_RESYNC, KIND_TRUTH, encode
+from imud.wire import FLAG_CALIBRATED, FLAG_RESYNC, KIND_TRUTH, encode
 
 log = logging.getLogger("imud.device")
 
@@ -52,7 +52,7 @@ class DeviceRunner:
         self,
         cfg: DeviceBase,
         driver: Driver | None,
-        calibration: Calibration | None,
+        calibration: CalibrationModel | None,
         publish: Publish,
         epoch_offset_ns: int,
         *,
@@ -63,7 +63,10 @@ class DeviceRunner:
         self.cfg = cfg
         self.driver = driver
         self.calibration = calibration
+        self.calibration_error: str | None = None
+        self.calibration_outside_span = 0  # samples whose temperature correction was clamped
         self.publish = publish
+        self.publish_raw: Publish | None = None  # the uncorrected stream, while subscribed
         self.publish_truth = publish_truth
         self.sim = sim
         self.epoch_offset_ns = epoch_offset_ns
@@ -96,6 +99,21 @@ class DeviceRunner:
         self._loss_logged_ns = -(10**12)
         self._traced: str | None = None  # the unexpected error last logged with its traceback
         self._resume: tuple[int, int] | None = None
+
+    def set_calibration(self, model: CalibrationModel | None, error: str | None) -> None:
+        """A (re)loaded calibration file, or why it cannot be applied (the device then runs
+        uncalibrated: its batches say so). Takes effect at the next batch: no seq gap."""
+        self.calibration, self.calibration_error = model, error
+        if self.pipeline is not None:
+            self.pipeline.cal = model
+
+    def want_raw(self, on: bool) -> None:
+        """Someone subscribes to (or left) `<prefix>/<device>/raw`: compute it only then."""
+        self._want_raw = on
+        if self.pipeline is not None:
+            self.pipeline.want_raw = on
+
+    _want_raw = False
 
     def resume(self, next_seq: int, last_t_ns: int) -> None:
         """Continue a stream this device published before (from a bus process that died):
@@ -171,6 +189,7 @@ class DeviceRunner:
         if self.pipeline is None:
             clock = SampleClock(self.driver.nominal_period_ns)
             self.pipeline = Pipeline(clock, self.calibration, self.epoch_offset_ns, self._resume)
+            self.pipeline.want_raw = self._want_raw
         elif self.pipeline.clock.k_last >= 0:
             # a re-initialised chip restarts its sample grid; keep seq counting across it
             self.pipeline.clock.rebase()
@@ -241,6 +260,7 @@ class DeviceRunner:
     def _publish(self, batch: SampleBatch, now: int) -> None:
         if batch.lost_before:
             self._note_loss(batch.lost_before, now)
+        self.calibration_outside_span += batch.outside_span
         run_end = 0
         whole = batch.hole is None
         runs = ((0, batch.n),) if whole and batch.n else _runs(batch.hole, batch.n)
@@ -253,17 +273,16 @@ class DeviceRunner:
             chans = (
                 batch.channels if whole else {c: a[start:end] for c, a in batch.channels.items()}
             )
-            self.publish(
-                encode(
-                    self.cfg.name,
-                    batch.first_seq + start,
-                    batch.t_ns if whole else batch.t_ns[start:end],
-                    chans,
-                    sf,
-                    flags=batch.flags | (FLAG_RESYNC if self._unpublished_lost else 0),
-                    lost_before=self._unpublished_lost,
+            t_ns = batch.t_ns if whole else batch.t_ns[start:end]
+            flags = batch.flags | (FLAG_RESYNC if self._unpublished_lost else 0)
+            lost, seq = self._unpublished_lost, batch.first_seq + start
+            self.publish(encode(self.cfg.name, seq, t_ns, chans, sf, flags=flags, lost_before=lost))
+            if batch.raw is not None and self.publish_raw is not None:
+                raw = batch.raw if whole else {c: a[start:end] for c, a in batch.raw.items()}
+                uncorrected = flags & ~FLAG_CALIBRATED
+                self.publish_raw(
+                    encode(self.cfg.name, seq, t_ns, raw, sf, flags=uncorrected, lost_before=lost)
                 )
-            )
             self._unpublished_lost = 0
             run_end = end
             self.samples += end - start
@@ -371,6 +390,9 @@ class DeviceRunner:
             "publish_dropped": self.publish_dropped,
             "temperature_c": None if self.temperature_c is None else round(self.temperature_c, 2),
             "calibration": str(self.calibration.path) if self.calibration else None,
+            "calibration_error": self.calibration_error,
+            "calibration_outside_span": self.calibration_outside_span,
+            "raw_subscribed": self._want_raw,
             "last_error": self.last_error,
             "last_error_at": self.last_error_at,
             "chip_status": chip,

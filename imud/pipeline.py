@@ -2,7 +2,9 @@
 
 raw channels --stamp (sample-clock fit, or the driver's own stamps)--> t_ns, seq
              --flags (invalid, saturated, alarm)--> per-sample flags
-             --to_si (NaN where invalid)--> SI --calibrate--> corrected --> SampleBatch
+             --to_si (NaN where invalid)--> SI (the `raw` stream, on demand)
+             --calibrate (temperature, bias, matrix; imud.calib.model)--> corrected
+             --> SampleBatch
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from imud.calibration import Calibration
+from imud.calib.model import CalibrationModel, apply, fill_temperature
 from imud.channels import INVALID_MASK, SATURATED, Channel, SampleFlag
 from imud.chips.api import FifoRead, RawBatch
 from imud.timestamps import SampleClock, Stamped
@@ -82,11 +84,7 @@ def to_si(raw: RawBatch) -> dict[Channel, F64]:
     return out
 
 
-def calibrate(cal: Calibration | None, si: dict[Channel, F64]) -> dict[Channel, F64]:
-    if cal is None or Channel.ACCEL not in si or Channel.GYRO not in si:
-        return si
-    accel, gyro = cal.apply(si[Channel.ACCEL], si[Channel.GYRO])
-    return {**si, Channel.ACCEL: accel, Channel.GYRO: gyro}
+_OUTSIDE = np.uint32(SampleFlag.TEMPERATURE_OUTSIDE_CALIBRATION)
 
 
 def holes(raw: RawBatch, flags: U32 | None) -> npt.NDArray[np.bool_] | None:
@@ -110,6 +108,8 @@ class SampleBatch:
     channels: dict[Channel, F64]
     sample_flags: U32 | None  # None: no sample has a flag
     hole: npt.NDArray[np.bool_] | None = None
+    raw: dict[Channel, F64] | None = None  # uncorrected SI, when someone asked for it
+    outside_span: int = 0  # samples whose temperature correction was clamped at its span
 
     @property
     def n(self) -> int:
@@ -123,12 +123,14 @@ class Pipeline:
     def __init__(
         self,
         clock: SampleClock,
-        cal: Calibration | None,
+        cal: CalibrationModel | None,
         epoch_offset_ns: int,
         resume: tuple[int, int] | None = None,
     ) -> None:
         self.clock = clock
-        self.cal = cal
+        self.cal = cal  # swapped whole by a reload between batches: no seq gap, no lock
+        self.want_raw = False  # someone subscribes to the uncorrected stream
+        self._last_temp: float | None = None
         self.epoch_offset_ns = epoch_offset_ns
         self.period_ns = clock.period
         # (next seq, last stamp in host ns) of a stream to continue: the sample clock takes it
@@ -164,8 +166,20 @@ class Pipeline:
         if st.period_ns:
             self.period_ns = st.period_ns
         flags = sample_flags(raw)
-        channels = calibrate(self.cal, to_si(raw))
-        batch_flags = (FLAG_CALIBRATED if self.cal is not None else 0) | (
+        si = to_si(raw)
+        cal = self.cal  # one model for the whole batch, whatever a reload does meanwhile
+        channels, outside = si, 0
+        if cal is not None:
+            temp, self._last_temp = fill_temperature(
+                si.get(Channel.TEMPERATURE), raw.n, self._last_temp
+            )
+            period_s = (st.period_ns or self.period_ns) / 1e9
+            channels, clamped = apply(cal, si, temp, period_s)
+            if clamped is not None:
+                flags = np.zeros(raw.n, dtype=np.uint32) if flags is None else flags
+                flags[clamped] |= _OUTSIDE
+                outside = int(np.count_nonzero(clamped))
+        batch_flags = (FLAG_CALIBRATED if cal is not None else 0) | (
             FLAG_RESYNC if st.lost_before else 0
         )
         return SampleBatch(
@@ -176,4 +190,6 @@ class Pipeline:
             channels,
             flags,
             holes(raw, flags),
+            si if self.want_raw else None,
+            outside,
         )

@@ -43,7 +43,10 @@ def initial_status(cfg: DeviceBase) -> dict[str, Any]:
         "poll_late_max_ms": 0.0,
         "publish_dropped": 0,
         "temperature_c": None,
-        "calibration": str(cfg.calibration) if cfg.calibration else None,
+        "calibration": None,  # the file being applied; None: uncalibrated
+        "calibration_error": None,  # why the configured file is not applied
+        "calibration_outside_span": 0,
+        "raw_subscribed": False,
         "last_error": None,
         "last_error_at": None,
         "chip_status": {},

@@ -14,7 +14,7 @@ import pytest
 
 from imud.buses.models import SimBus
 from imud.chips.mpu6050.config import Mpu6050Config
-from imud.config import ImudConfig, load_config
+from imud.config import ImudConfig, calibration_problems, load_config
 from imud.errors import ConfigError
 
 REPO = Path(__file__).resolve().parent.parent
@@ -382,20 +382,23 @@ def test_absolute_calibration_path_kept(tmp_path: Path) -> None:
     assert cfg.device[0].calibration == cal
 
 
+def problems_of(cfg_path: Path) -> list[str]:
+    return calibration_problems(load_config(cfg_path))
+
+
 def test_missing_calibration_file(tmp_path: Path) -> None:
+    # a bad calibration file must not stop the daemon: the config loads, the check reports it
     conf_dir = tmp_path / "etc"
     cfg_path = write(conf_dir, GOOD_DEVICE + mpu_device(calibration='"cal/missing.toml"'))
-    with pytest.raises(ConfigError) as info:
-        load_config(cfg_path)
-    (msg,) = info.value.messages
+    (msg,) = problems_of(cfg_path)
     assert "device[1]" in msg and "'imu1'" in msg
-    assert "calibration" in msg
+    assert "calibration" in msg and "does not exist" in msg and "imud calibrate" in msg
     assert str(conf_dir.resolve() / "cal" / "missing.toml") in msg  # the resolved path
 
 
 def test_invalid_calibration_file_reported_per_device(tmp_path: Path) -> None:
     write(tmp_path, "[accel]\nbias = [0, 0, 0]\nbais = [1, 1, 1]\n", "bad.cal.toml")
-    msg = only_error(tmp_path, GOOD_DEVICE + mpu_device(calibration='"bad.cal.toml"'))
+    (msg,) = problems_of(write(tmp_path, GOOD_DEVICE + mpu_device(calibration='"bad.cal.toml"')))
     assert "device[1]" in msg and "'imu1'" in msg
     assert "calibration" in msg
     assert "bais" in msg
@@ -405,10 +408,16 @@ def test_every_bad_calibration_reported(tmp_path: Path) -> None:
     text = mpu_device(name="a", address=0x68, calibration='"a.toml"') + mpu_device(
         name="b", address=0x69, calibration='"b.toml"'
     )
-    messages = errors_of(tmp_path, text)
+    messages = problems_of(write(tmp_path, text))
     assert len(messages) == 2
     assert "device[0] 'a'" in messages[0]
     assert "device[1] 'b'" in messages[1]
+
+
+def test_calibration_for_another_chip_reported(tmp_path: Path) -> None:
+    write(tmp_path, 'chip = "icm42688p"\n[gyro]\nbias = [0, 0, 0]\n', "c.toml")
+    (msg,) = problems_of(write(tmp_path, mpu_device(calibration='"c.toml"')))
+    assert "made for a icm42688p, this device is a mpu6050" in msg
 
 
 # --- zenoh ---------------------------------------------------------------------------------------
@@ -471,8 +480,8 @@ def test_missing_motion_kind_message_is_about_the_motion(tmp_path: Path) -> None
 
 def test_calibration_path_is_a_directory(tmp_path: Path) -> None:
     (tmp_path / "caldir").mkdir()
-    msg = only_error(tmp_path, mpu_device(calibration='"caldir"'))
-    assert "calibration" in msg
+    (msg,) = problems_of(write(tmp_path, mpu_device(calibration='"caldir"')))
+    assert "calibration" in msg and "cannot read" in msg
 
 
 def test_config_file_not_utf8(tmp_path: Path) -> None:

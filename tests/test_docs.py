@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import imud.client as ic
-from imud.calibration import load_calibration
+from imud.calib.file import load_calibration
 from imud.channels import CHANNELS
 from imud.config import parse_config
 from tests.daemon_fixture import DaemonProc
@@ -40,7 +40,7 @@ MINIMAL_DEVICE = {"name": "doc0", "chip": "mpu6050", "bus": {"kind": "sim"}}
 @pytest.mark.parametrize(("where", "body"), blocks("toml"), ids=lambda x: str(x)[:40])
 def test_every_toml_block_in_the_docs_is_accepted(where: str, body: str, tmp_path: Path) -> None:
     raw: dict[str, Any] = tomllib.loads(body)
-    if "version" in raw and "device" not in raw:  # a calibration file
+    if raw.get("format") == "imud-calibration" or ("version" in raw and "device" not in raw):
         path = tmp_path / "cal.toml"
         path.write_text(body)
         load_calibration(path)

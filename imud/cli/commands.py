@@ -142,6 +142,12 @@ def check_config(file: str, as_json: bool) -> None:
     except ZenohSetupError as e:
         click.echo(f"{file}: invalid config:\n  {e}", err=True)
         sys.exit(EXIT_USAGE)
+    from imud.config import calibration_problems
+
+    problems = calibration_problems(cfg)
+    if problems:  # the daemon would run these devices uncalibrated: say so, and fail the check
+        click.echo(f"{file}: invalid config:\n  " + "\n  ".join(problems), err=True)
+        sys.exit(EXIT_USAGE)
     if as_json:
         click.echo(json.dumps(cfg.model_dump(mode="json"), indent=2))
         return

@@ -11,16 +11,16 @@ either the old file or the new one, never a torn one.
 
 from __future__ import annotations
 
-import contextlib
-import os
-import tempfile
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from imud.atomicfile import write_atomic
 from imud.chips.bno055.registers import OFFSETS_LEN
+
+__all__ = ["Offsets", "OffsetsError", "load_offsets", "parse_offsets", "write_atomic"]
 
 FORMAT = "imud-bno055-offsets"
 VERSION = 1
@@ -151,24 +151,3 @@ def load_offsets(path: Path, unit_sel: int, uid: bytes | None) -> Offsets | None
         return parse_offsets(text, unit_sel, uid)
     except OffsetsError as e:
         raise OffsetsError(f"{path}: {e}") from None
-
-
-def write_atomic(path: Path, text: str) -> None:
-    """Replace `path` with `text` so that a crash leaves the old file or the new, never half."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-    dfd = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        os.fsync(dfd)  # the rename itself is durable only once the directory is
-    finally:
-        os.close(dfd)
