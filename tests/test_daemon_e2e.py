@@ -244,6 +244,55 @@ def test_sighup_logs_and_keeps_running(daemon: DaemonProc) -> None:
     assert daemon.status()["devices"][0]["state"] == "running"
 
 
+def _until(pred: object, timeout: float = 10.0) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():  # type: ignore[operator]
+            return True
+        time.sleep(0.1)
+    return False
+
+
+def test_raw_stream_exists_only_while_someone_subscribes(daemon: DaemonProc) -> None:
+    def biased() -> dict[str, object]:
+        return next(d for d in daemon.status()["devices"] if d["name"] == "biased")
+
+    assert biased()["raw_subscribed"] is False
+    with ic.open_session(daemon.endpoint) as s:
+        it = ic.batches(s, "biased", raw=True, timeout=5.0)
+        raw = [next(it) for _ in range(5)]
+        assert not any(b.flags & FLAG_CALIBRATED for b in raw)
+        assert _until(lambda: biased()["raw_subscribed"] is True)  # status is relayed at 5 Hz
+        it.close()  # unsubscribes
+        # uncorrected: x carries the simulated 40 mg bias times its 2 % scale error
+        r = math.radians(30.0)
+        ax = np.concatenate([b.accel for b in raw])[:, 0].astype(np.float64).mean()
+        assert abs(ax - 0.040 * G * 1.02) < 0.02, ax
+        assert abs(np.concatenate([b.accel for b in raw])[:, 1].mean() - G * math.sin(r)) < 0.5
+    assert _until(lambda: biased()["raw_subscribed"] is False)
+
+
+def test_calibration_file_edits_are_picked_up_live(daemon: DaemonProc) -> None:
+    cal = daemon.config.parent / "cal.toml"
+    good = cal.read_text()
+
+    def biased() -> dict[str, object]:
+        return next(d for d in daemon.status()["devices"] if d["name"] == "biased")
+
+    try:
+        cal.write_text("[accel]\nscale = [1.0, 1.0, nan]\n")
+        assert _until(lambda: biased()["calibration_error"] is not None)
+        assert "accel.scale" in str(biased()["calibration_error"])
+        assert biased()["calibration"] is None and biased()["state"] == "running"
+        time.sleep(0.3)
+        bs = _collect(daemon, "biased", 0.5)
+        assert not any(b.flags & FLAG_CALIBRATED for b in bs)  # uncalibrated, not garbage
+    finally:
+        cal.write_text(good)
+    assert _until(lambda: biased()["calibration_error"] is None)
+    assert str(biased()["calibration"]).endswith("cal.toml")
+
+
 def test_status_without_daemon_fails_clearly() -> None:
     port = free_port()
     import subprocess
