@@ -7,7 +7,9 @@ Gauss-Markov bias (bias instability), and n white noise of the datasheet density
 colouring of that noise and its group delay are not modelled.
 
 For chips that estimate orientation or sense the magnetic field: the motion's true orientation as
-a quaternion (body -> world, ENU), and the Earth's field with a board's hard and soft iron.
+a quaternion (body -> world, ENU), and the Earth's field with a board's hard and soft iron. The
+motion itself (and the quaternion helpers, imported here for the chip simulators) is in
+`imud.sim.motion`.
 """
 
 from __future__ import annotations
@@ -18,154 +20,18 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from imud.sim.settings import (
-    ErrorSettings,
-    MagneticSettings,
-    SimSettings,
-    StillMotion,
-    TumbleMotion,
-)
+from imud.sim.motion import G as G
+from imud.sim.motion import MotionModel as MotionModel
+from imud.sim.motion import quat_conj as quat_conj
+from imud.sim.motion import quat_from_axis_angle as quat_from_axis_angle
+from imud.sim.motion import quat_from_euler_zyx as quat_from_euler_zyx
+from imud.sim.motion import quat_from_matrix as quat_from_matrix
+from imud.sim.motion import quat_mul as quat_mul
+from imud.sim.motion import quat_rotate as quat_rotate
+from imud.sim.motion import rotation_zyx as rotation_zyx
+from imud.sim.settings import ErrorSettings, MagneticSettings, SimSettings
 
-G = 9.80665
 F64 = npt.NDArray[np.float64]
-
-
-def rotation_zyx(roll_deg: float, pitch_deg: float, yaw_deg: float) -> F64:
-    """Body-to-world rotation R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    r, p, y = (math.radians(a) for a in (roll_deg, pitch_deg, yaw_deg))
-    cr, sr, cp, sp, cy, sy = (
-        math.cos(r),
-        math.sin(r),
-        math.cos(p),
-        math.sin(p),
-        math.cos(y),
-        math.sin(y),
-    )
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
-
-
-class MotionModel:
-    """True specific force (m/s^2) and angular rate (rad/s) in the body frame at times t (s).
-
-    World frame ENU: a body at rest feels +g along world up.
-    """
-
-    def __init__(self, motion: StillMotion | TumbleMotion) -> None:
-        r0 = rotation_zyx(motion.roll_deg, motion.pitch_deg, motion.yaw_deg)
-        self._f0 = r0.T @ np.array([0.0, 0.0, G])
-        rate = np.radians(motion.rate_dps) if isinstance(motion, TumbleMotion) else np.zeros(3)
-        self._w = np.asarray(rate, dtype=np.float64)
-        speed = float(np.linalg.norm(self._w))
-        u = self._w / speed if speed else self._w
-        self._uxv = np.cross(u, self._f0)  # Rodrigues terms, constant for a constant rate
-        self._uuv = u * float(u @ self._f0)
-        # the true orientation (body -> world), for chips that estimate it: R(t) = R0 exp(t [w]x)
-        self._q0 = quat_from_euler_zyx(motion.roll_deg, motion.pitch_deg, motion.yaw_deg)
-        self._u = u
-        self._speed = speed
-
-    def sample(self, t_s: F64) -> tuple[F64, F64]:
-        n = t_s.shape[0]
-        w = np.broadcast_to(self._w, (n, 3)).copy()
-        speed = float(np.linalg.norm(self._w))
-        if speed == 0.0:
-            return np.broadcast_to(self._f0, (n, 3)).copy(), w
-        # A world-fixed vector seen from a body turning at w rotates by -|w| t about w (Rodrigues)
-        a = -speed * t_s[:, None]
-        return self._f0 * np.cos(a) + self._uxv * np.sin(a) + self._uuv * (1 - np.cos(a)), w
-
-    def orientation(self, t_s: F64) -> F64:
-        """True orientation at times t: unit quaternions (w, x, y, z), body -> world (ENU),
-        shape (N, 4); the same rotation `sample` applies to gravity."""
-        n = t_s.shape[0]
-        if self._speed == 0.0:
-            return np.broadcast_to(self._q0, (n, 4)).copy()
-        half = 0.5 * self._speed * t_s
-        turn = np.empty((n, 4))
-        turn[:, 0] = np.cos(half)
-        turn[:, 1:] = self._u * np.sin(half)[:, None]
-        return quat_mul(self._q0, turn)
-
-
-# --- quaternions: (w, x, y, z), Hamilton product, q rotates body vectors into the world ---------
-def quat_mul(a: F64, b: F64) -> F64:
-    """Hamilton product a b, for (4,) or (N, 4) arrays (broadcast)."""
-    aw, ax, ay, az = (a[..., i] for i in range(4))
-    bw, bx, by, bz = (b[..., i] for i in range(4))
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
-
-
-def quat_conj(q: F64) -> F64:
-    """The inverse rotation of a unit quaternion."""
-    out: F64 = q * np.array([1.0, -1.0, -1.0, -1.0])
-    return out
-
-
-def _cross(a: F64, b: F64) -> F64:
-    """np.cross for (..., 3) arrays, without its axis handling (a hot path of the simulators)."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
-
-
-def quat_rotate(q: F64, v: F64) -> F64:
-    """v rotated by q (q v q*), for (4,)/(N, 4) quaternions and (3,)/(N, 3) vectors."""
-    w = q[..., :1]
-    r = q[..., 1:]
-    t = 2.0 * _cross(r, v)
-    out: F64 = v + w * t + _cross(r, t)
-    return out
-
-
-def quat_from_axis_angle(axis: F64, angle_rad: float) -> F64:
-    """The rotation by `angle_rad` about the unit vector `axis`."""
-    half = 0.5 * angle_rad
-    return np.concatenate([[math.cos(half)], np.asarray(axis, dtype=np.float64) * math.sin(half)])
-
-
-def quat_from_euler_zyx(roll_deg: float, pitch_deg: float, yaw_deg: float) -> F64:
-    """The quaternion of `rotation_zyx`: Rz(yaw) Ry(pitch) Rx(roll)."""
-    z = quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), math.radians(yaw_deg))
-    y = quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), math.radians(pitch_deg))
-    x = quat_from_axis_angle(np.array([1.0, 0.0, 0.0]), math.radians(roll_deg))
-    return quat_mul(quat_mul(z, y), x)
-
-
-def quat_from_matrix(m: F64) -> F64:
-    """The unit quaternion of a proper rotation matrix (Shepperd's method: stable for every
-    rotation, including half turns)."""
-    tr = float(np.trace(m))
-    cands = [tr, m[0, 0], m[1, 1], m[2, 2]]
-    i = int(np.argmax(cands))
-    if i == 0:
-        s = 2.0 * math.sqrt(1.0 + tr)
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    elif i == 1:
-        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-    elif i == 2:
-        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-    else:
-        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    out = np.array(q)
-    result: F64 = out if out[0] >= 0 else -out
-    return result
 
 
 class MagneticField:
@@ -197,12 +63,25 @@ class MagneticField:
 
 
 class TemperatureModel:
+    """The die temperature: a linear ramp clipped to the limits (the default; a constant without
+    a ramp), or with `temperature_cycle_min` a sine between the limits, starting at
+    `temperature_c` on its way up. A thermal chamber's slow cycle: a temperature calibration
+    sees the whole span, both ways, and a smooth path keeps the die close to the chamber (a fast
+    step would leave the die and the sensor's true temperature apart, which no fit models)."""
+
     def __init__(self, s: SimSettings) -> None:
         self.t0 = s.temperature_c
         self.ramp = s.temperature_ramp_c_per_min / 60.0
         self.lo, self.hi = s.temperature_limits_c
+        self.cycle_s = s.temperature_cycle_min * 60.0
+        self.mid, self.amp = 0.5 * (self.lo + self.hi), 0.5 * (self.hi - self.lo)
+        if self.cycle_s > 0:  # T(t) = mid - amp cos(2 pi t / cycle + phase): T(0) = t0, rising
+            self.phase = math.acos(min(1.0, max(-1.0, (self.mid - self.t0) / self.amp)))
 
     def at(self, t_s: F64) -> F64:
+        if self.cycle_s > 0:
+            out: F64 = self.mid - self.amp * np.cos(2 * math.pi * t_s / self.cycle_s + self.phase)
+            return out
         return np.clip(self.t0 + self.ramp * t_s, self.lo, self.hi)
 
 

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+import math
+from typing import Annotated, Literal, Self
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 Vec3 = tuple[float, float, float]
 
@@ -32,7 +33,68 @@ class TumbleMotion(_Strict):
     yaw_deg: float = 0.0
 
 
-Motion = Annotated[StillMotion | TumbleMotion, Field(discriminator="kind")]
+# Six faces (gravity along +-x, +-y, +-z of the body) and six cube corners (gravity along
+# (+-1, +-1, +-1)/sqrt(3), all but (1, -1, -1) and (-1, -1, -1)): the corners make every product
+# of two axes non-zero, so the 9-parameter accel fit (upper-triangular matrix and bias) is well
+# conditioned (its Jacobian's condition number is 3.6; six faces alone leave the off-diagonal
+# terms unobservable). Ordered face, corner, face, ... so each move is a 55 degree tilt about a
+# horizontal axis (79 degrees back to the start); yaw follows from those tilts, rounded.
+DEFAULT_POSES: tuple[Vec3, ...] = (
+    (0.0, 0.0, 0.0),
+    (45.0, -35.0, -15.0),
+    (0.0, -90.0, 30.0),
+    (-45.0, -35.0, 75.0),
+    (-90.0, 0.0, 90.0),
+    (-45.0, 35.0, 105.0),
+    (0.0, 90.0, 150.0),
+    (135.0, 35.0, -75.0),
+    (180.0, 0.0, -60.0),
+    (135.0, -35.0, -45.0),
+    (90.0, 0.0, -30.0),
+    (45.0, 35.0, -45.0),
+)
+
+
+class PosesMotion(_Strict):
+    """A calibration session without a human: still poses joined by smooth rotations, then a
+    sweep through all directions for the magnetometer, then back to the first pose.
+
+    Moves are the shortest rotation between two poses (plus `turns_between` whole turns about
+    the same axis) on a minimum-jerk time profile: peak rate 1.875 x angle / `move_s` (the
+    default poses: 74 deg/s). The sweep spins 5 turns about each body axis in turn while the
+    spin axis tilts once: peak rate about 3 x 5.1 turns / (0.9 `sweep_s`), 102 deg/s for 60 s.
+    """
+
+    kind: Literal["poses"] = "poses"
+    poses: list[Vec3] = Field(
+        default_factory=lambda: list(DEFAULT_POSES),
+        description="still orientations, (roll, pitch, yaw) in degrees, visited in order",
+    )
+    hold_s: float = Field(4.0, gt=0.0, description="time still in each pose")
+    move_s: float = Field(2.0, gt=0.0, description="time of each rotation between poses")
+    turns_between: int = Field(
+        0, ge=0, le=10, description="whole extra turns about the rotation axis during a move"
+    )
+    sweep_s: float = Field(
+        60.0, ge=0.0, description="rotation through all directions after the poses; 0: none"
+    )
+    repeat: bool = Field(True, description="loop forever; false: stay in the first pose after")
+
+    @field_validator("poses")
+    @classmethod
+    def _some_finite_poses(cls, poses: list[Vec3]) -> list[Vec3]:
+        if not poses:
+            raise ValueError(
+                "no poses: list at least one [roll, pitch, yaw] in degrees "
+                "(a 9-parameter accel calibration needs 9 distinct orientations)"
+            )
+        for i, p in enumerate(poses):
+            if not all(math.isfinite(a) for a in p):
+                raise ValueError(f"pose {i} is {list(p)}: angles must be finite degrees")
+        return poses
+
+
+Motion = Annotated[StillMotion | TumbleMotion | PosesMotion, Field(discriminator="kind")]
 
 
 class ErrorSettings(_Strict):
@@ -102,7 +164,29 @@ class SimSettings(_Strict):
     temperature_c: float = 25.0
     temperature_ramp_c_per_min: float = 0.0
     temperature_limits_c: tuple[float, float] = (-40.0, 85.0)
+    temperature_cycle_min: float = Field(
+        0.0,
+        ge=0.0,
+        description="> 0: the temperature swings between the limits as a sine of this period"
+        " (minutes), from temperature_c upward; 0: the linear ramp",
+    )
     nak_rate: float = Field(0.0, ge=0.0, le=1.0, description="fraction of bus transfers NAKed")
     errors: ErrorSettings = Field(default_factory=ErrorSettings)
     serial: SerialFaults = Field(default_factory=SerialFaults)
     magnetic: MagneticSettings = Field(default_factory=MagneticSettings)
+
+    @model_validator(mode="after")
+    def _one_temperature_profile(self) -> Self:
+        if self.temperature_cycle_min > 0:
+            lo, hi = self.temperature_limits_c
+            if not hi > lo:
+                raise ValueError(
+                    f"temperature_cycle_min needs temperature_limits_c = [low, high] with "
+                    f"high > low, not {[lo, hi]}"
+                )
+            if self.temperature_ramp_c_per_min != 0:
+                raise ValueError(
+                    "temperature_cycle_min and temperature_ramp_c_per_min both set: "
+                    "the cycle replaces the ramp, set one of them"
+                )
+        return self
