@@ -87,6 +87,21 @@ def to_si(raw: RawBatch) -> dict[Channel, F64]:
 _OUTSIDE = np.uint32(SampleFlag.TEMPERATURE_OUTSIDE_CALIBRATION)
 
 
+def correct(
+    cal: CalibrationModel,
+    si: dict[Channel, F64],
+    n: int,
+    last_temp: float | None,
+    period_s: float,
+) -> tuple[dict[Channel, F64], npt.NDArray[np.bool_] | None, float | None]:
+    """The calibration stage: SI in, corrected out, with where the temperature term was clamped
+    and the last valid temperature (carried to the next batch). `imud calibrate apply` runs
+    this same function on a recording."""
+    temp, last = fill_temperature(si.get(Channel.TEMPERATURE), n, last_temp)
+    channels, clamped = apply(cal, si, temp, period_s)
+    return channels, clamped, last
+
+
 def holes(raw: RawBatch, flags: U32 | None) -> npt.NDArray[np.bool_] | None:
     """Samples with no valid measurement at all (every channel but temperature invalid): they
     are not published, and count as lost. None when there are none."""
@@ -170,11 +185,8 @@ class Pipeline:
         cal = self.cal  # one model for the whole batch, whatever a reload does meanwhile
         channels, outside = si, 0
         if cal is not None:
-            temp, self._last_temp = fill_temperature(
-                si.get(Channel.TEMPERATURE), raw.n, self._last_temp
-            )
             period_s = (st.period_ns or self.period_ns) / 1e9
-            channels, clamped = apply(cal, si, temp, period_s)
+            channels, clamped, self._last_temp = correct(cal, si, raw.n, self._last_temp, period_s)
             if clamped is not None:
                 flags = np.zeros(raw.n, dtype=np.uint32) if flags is None else flags
                 flags[clamped] |= _OUTSIDE

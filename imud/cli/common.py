@@ -1,0 +1,104 @@
+"""What the `imud` subcommands share: the --connect/--prefix options, exit codes, failing with a
+message (or JSON), and asking a daemon for its status and one of its devices."""
+
+from __future__ import annotations
+
+import difflib
+import json
+import sys
+from typing import Any, NoReturn
+
+import click
+
+from imud.config import DEFAULT_ENDPOINT
+from imud.zerrors import endpoint_problem
+
+EXIT_NO_DAEMON = 1
+EXIT_USAGE = 2
+
+
+def _check_endpoint(_ctx: click.Context, _param: click.Parameter, value: str) -> str:
+    """A malformed endpoint is a usage error naming the value and the expected form; left to
+    Zenoh it would read as "no daemon reachable"."""
+    problem = endpoint_problem(value)
+    if problem:
+        raise click.BadParameter(problem)
+    return value
+
+
+_connect = click.option(
+    "--connect",
+    "endpoint",
+    default=DEFAULT_ENDPOINT,
+    show_default=True,
+    callback=_check_endpoint,
+    help="Zenoh endpoint of the daemon, PROTOCOL/HOST:PORT",
+)
+_prefix = click.option("--prefix", default="imud", show_default=True, help="key prefix")
+
+
+def _fail(message: str, code: int, as_json: bool = False) -> NoReturn:
+    """Stop with `message`: on stderr, or as `{"error": ...}` on stdout for --json callers (a
+    script reading JSON gets JSON, whatever happened)."""
+    if as_json:
+        click.echo(json.dumps({"error": message}))
+    else:
+        click.echo(f"imud: {message}", err=True)
+    sys.exit(code)
+
+
+# --- talking to a daemon -------------------------------------------------------------------------
+def _session(endpoint: str, as_json: bool = False) -> Any:
+    from imud.client import NoDaemon, open_session
+
+    try:
+        return open_session(endpoint)
+    except NoDaemon as e:
+        _fail(f"{e}; is `imud run` running? (--connect to point elsewhere)", 1, as_json)
+
+
+def _ask_status(
+    session: Any, endpoint: str, prefix: str, timeout: float, as_json: bool = False
+) -> dict[str, Any]:
+    from imud.client import NoDaemon, get_status
+
+    try:
+        return get_status(session, prefix, timeout=timeout)
+    except NoDaemon as e:
+        _fail(_no_answer(endpoint, prefix, e), EXIT_NO_DAEMON, as_json)
+
+
+def _no_answer(endpoint: str, prefix: str, e: Exception) -> str:
+    return (
+        f"no daemon answered at {endpoint} ({e}); is `imud run` running there, "
+        f"with [zenoh] prefix = {prefix!r}?"
+    )
+
+
+def _device(
+    st: dict[str, Any], device: str, endpoint: str, truth: bool, as_json: bool
+) -> dict[str, Any]:
+    """DEVICE's entry in the daemon's status; a wrong name or truth that is not published is a
+    usage error now, rather than a subscription that never receives anything."""
+    by = {d["name"]: d for d in st.get("devices", [])}
+    if device not in by:
+        close = difflib.get_close_matches(device, list(by), n=1, cutoff=0.5)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        _fail(
+            f"no device {device!r} on the daemon at {endpoint}{hint} "
+            f"(its devices: {', '.join(by) or 'none'})",
+            EXIT_USAGE,
+            as_json,
+        )
+    dev = by[device]
+    if truth and not dev.get("truth", False):
+        if str(dev.get("bus", "")).startswith("sim-"):
+            why = (
+                f"{device} does not publish simulator truth (truth is off): set `truth = true` "
+                "in its [device.sim] table and restart the daemon"
+            )
+        else:
+            why = f"{device} is real hardware ({dev.get('bus')}): only simulated devices have truth"
+        _fail(why, EXIT_USAGE, as_json)
+    found: dict[str, Any] = dev
+    return found
