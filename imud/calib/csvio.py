@@ -1,0 +1,649 @@
+"""Recordings as CSV files: read (any tool's, with unit options) and written (imud's own).
+
+The format is in docs/recording-csv.md. Reading is built for files of an hour at 100 Hz or ten
+minutes at 1 kHz (about 100 MB): one vectorised pass over the bytes finds the lines, comments
+and field counts, then np.loadtxt's C parser converts the columns imud uses. Only when the parser
+refuses a file does more work follow: a bisection with the same parser finds the first line it
+refuses, so the message can name that line and column.
+
+Every refusal is a `CsvError` naming the file, the line (1-based, as an editor numbers it) and
+the column, because the person fixing the file will open it in an editor at that line.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+import os
+import re
+import tempfile
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Literal, Self
+
+import numpy as np
+import numpy.typing as npt
+
+from imud.calib.recording import Recording
+from imud.channels import SATURATED
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+Bool = npt.NDArray[np.bool_]
+
+AccelUnits = Literal["m/s2", "g"]
+GyroUnits = Literal["rad/s", "dps"]
+MagUnits = Literal["T", "uT"]
+
+REQUIRED = ("timestamp_ns", "ax", "ay", "az", "gx", "gy", "gz")
+OPTIONAL = ("temp", "mx", "my", "mz", "flags")
+INTEGER_COLUMNS = frozenset({"timestamp_ns", "flags"})
+SATURATED_MASK = int(sum(int(f) for f in SATURATED.values()))  # bits 16-19 of the flags
+FLOAT_FORMAT = "%.9g"  # 9 significant digits: every float32 reads back to the same float32
+
+# Plausibility limits for the unit checks. Wrong units are off by a factor of 9.8 (g against
+# m/s^2), 57 (deg/s against rad/s) or 1e6 (uT against T), so the bands below are wide: a real
+# recording in the declared units is never near their edges.
+ACCEL_RATIO = 3.0  # the median |accel| must lie within g/3 .. 3g (a still or hand-held session)
+GYRO_MAX_RAD_S = 35.0  # 2000 deg/s = 34.9 rad/s, the widest range MEMS gyros offer
+MAG_RANGE_T = (1e-6, 1e-3)  # the Earth's 25-65 uT, with room for hard iron up to 1 mT
+TEMP_RANGE_C = (-60.0, 150.0)  # beyond any IMU's operating range
+
+_CHUNK_ROWS = 65536  # rows formatted at once by the writer (bounds its memory)
+
+
+class CsvError(ValueError):
+    """A recording that cannot be read as it is: the message names the file, the line and the
+    column, and says what to change."""
+
+    def __init__(
+        self, path: Path | str, message: str, line: int | None = None, column: str | None = None
+    ) -> None:
+        self.path = Path(path)
+        self.line = line
+        self.column = column
+        self.reason = message
+        where = str(path) if line is None else f"{path}:{line}"
+        if column is not None:
+            where += f": column {column}"
+        super().__init__(f"{where}: {message}")
+
+
+# ---------------------------------------------------------------------------------------------
+# reading
+
+
+@dataclass(frozen=True)
+class _Lines:
+    """Where each line of the file lies, found with array operations over the bytes.
+
+    start/end: the line's first byte and its newline (or the end of the file); stop: where its
+    content ends (a '#' starts a comment); content: the line has something before the comment
+    that is not white space; commas: how many commas it has before the comment."""
+
+    start: I64
+    stop: I64
+    end: I64
+    content: Bool
+    commas: I64
+
+
+def _positions(mask: Bool) -> I64:
+    return np.flatnonzero(mask).astype(np.int64, copy=False)
+
+
+def _scan(data: npt.NDArray[np.uint8]) -> _Lines:
+    n = int(data.shape[0])
+    newlines = _positions(data == ord("\n"))
+    start = np.concatenate([np.zeros(1, np.int64), newlines + 1])
+    end = np.concatenate([newlines, np.full(1, n, np.int64)])
+    if n == 0 or data[-1] == ord("\n"):  # the file ends with a newline: no line after it
+        start, end = start[:-1], end[:-1]
+    hashes = _positions(data == ord("#"))
+    first_hash = np.append(hashes, n)[np.searchsorted(hashes, start)]
+    stop = np.minimum(end, first_hash)
+    # white space (a byte <= 0x20; the newline never falls inside start..stop) is rare in a
+    # CSV, so count it by its positions rather than a cumulative sum over every byte
+    spaces = _positions(data <= ord(" "))
+    blank = np.searchsorted(spaces, stop) - np.searchsorted(spaces, start)
+    commas = _positions(data == ord(","))
+    n_commas = np.searchsorted(commas, stop) - np.searchsorted(commas, start)
+    return _Lines(start, stop, end, (stop - start) > blank, n_commas.astype(np.int64))
+
+
+def _data_bytes(buf: bytes, data: npt.NDArray[np.uint8], lines: _Lines, rows: I64) -> bytes:
+    """The data lines alone, comments and blank lines cut out, so that row k of np.loadtxt is
+    data line k (and its line number is known)."""
+    if rows.size == 0:
+        return b""
+    first = int(lines.start[rows[0]])
+    clean = rows.size == lines.start.size - rows[0] and bool(
+        np.all(lines.stop[rows] == lines.end[rows])
+    )
+    if clean:  # the usual file: nothing but data after the header
+        return buf[first:]
+    marks = np.zeros(data.shape[0] + 1, np.int8)
+    marks[lines.start[rows]] = 1
+    marks[lines.stop[rows]] = -1
+    keep = np.cumsum(marks[:-1], dtype=np.int8) > 0
+    newline = lines.end[rows]
+    keep[newline[newline < data.shape[0]]] = True
+    return data[keep].tobytes()
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _normalise(name: str) -> str:
+    return name.strip().strip("\"'").strip().lower()
+
+
+_AXIS = r"_?([xyz])(?:_|$)"
+
+
+def _named(words: str, tail: str) -> re.Pattern[str]:
+    """One of `words` (a|b|c), after any prefix (imu_, field_), then `tail`."""
+    return re.compile(rf"^(?:\w*?_)?(?:{words}){tail}")
+
+
+_FOREIGN: tuple[tuple[str, re.Pattern[str]], ...] = (
+    ("a", _named("linear_acceleration|acceleration|accelerometer|accel|acc|a", _AXIS)),
+    ("g", _named("angular_velocity|gyroscope|gyro|gyr|omega|w|g", _AXIS)),
+    ("m", _named("magnetic_field|magnetometer|magn|mag|m", _AXIS)),
+    ("timestamp_ns", _named("timestamp|time|stamp|t", r"(?:_(?:ns|us|ms|s|sec))?$")),
+    ("temp", _named("temperature|temp|tmp", r"(?:_\w+)?$")),
+)
+
+
+def _suggest(header: list[str]) -> dict[str, str]:
+    """Names other tools use (acc_x, gyro_x, field.angular_velocity.x, %time, ...) mapped to
+    imud's, for the columns the header lacks."""
+    out: dict[str, str] = {}
+    for name in header:
+        if name in REQUIRED or name in OPTIONAL:
+            continue
+        key = re.sub(r"[^a-z0-9]+", "_", name.removeprefix("%")).strip("_")
+        for ours, pattern in _FOREIGN:
+            m = pattern.match(key)
+            if m is None:
+                continue
+            target = ours + m.group(1) if m.groups() else ours
+            if target not in header and target not in out.values():
+                out[name] = target
+            break
+    return out
+
+
+def _columns(path: Path, header_line: int, header: list[str]) -> dict[str, int]:
+    """imud's column names -> their index in the header, with every header problem refused."""
+    if header and all(_is_number(h) for h in header):
+        raise CsvError(
+            path,
+            "the first row is data, not a header: add a header row naming the columns, e.g. "
+            + ",".join(REQUIRED),
+            header_line,
+        )
+    index: dict[str, int] = {}
+    for i, name in enumerate(header):
+        if name in REQUIRED or name in OPTIONAL:
+            if name in index:
+                raise CsvError(
+                    path, f"appears twice (fields {index[name] + 1} and {i + 1})", header_line, name
+                )
+            index[name] = i
+    missing = [c for c in REQUIRED if c not in index]
+    if missing:
+        msg = f"missing required columns {', '.join(missing)}; the header has: {', '.join(header)}"
+        raw = ",".join(header)
+        if len(header) == 1 and (";" in raw or "\t" in raw):
+            msg += "; the fields look separated by ';' or tabs: imud reads comma-separated files"
+        guess = _suggest(header)
+        if guess:
+            renames = ", ".join(f"{k} -> {v}" for k, v in guess.items())
+            msg += (
+                f"; these look like another tool's names: rename {renames} (and pass the unit "
+                "options if that tool's units are not SI; timestamp_ns is integer nanoseconds)"
+            )
+        raise CsvError(path, msg, header_line)
+    mag = [c for c in ("mx", "my", "mz") if c in index]
+    if 0 < len(mag) < 3:
+        lacking = ", ".join(c for c in ("mx", "my", "mz") if c not in index)
+        raise CsvError(path, f"has {', '.join(mag)} but not {lacking}", header_line)
+    return index
+
+
+def _first_bad_row(blob: list[bytes], usecols: list[int], dtype: np.dtype[np.void]) -> int:
+    """Index of the first row np.loadtxt refuses, by bisection with np.loadtxt itself, so the
+    answer agrees with the parser exactly (about twice the work of one pass)."""
+    lo, hi = 0, len(blob)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        try:
+            _loadtxt(b"\n".join(blob[lo:mid]), usecols, dtype)
+        except ValueError:
+            hi = mid
+        else:
+            lo = mid
+    return lo
+
+
+def _loadtxt(text: bytes, usecols: list[int], dtype: np.dtype[np.void]) -> npt.NDArray[np.void]:
+    out: npt.NDArray[np.void] = np.loadtxt(
+        io.BytesIO(text),
+        delimiter=",",
+        comments=None,
+        dtype=dtype,
+        usecols=usecols,
+        ndmin=1,
+        encoding="utf-8",
+    )
+    return out
+
+
+def _conversion_error(
+    path: Path, line: int, row: bytes, index: dict[str, int], dtype: np.dtype[np.void]
+) -> CsvError:
+    fields = row.split(b",")
+    for name, col in index.items():
+        text = fields[col].decode("utf-8", "replace").strip()
+        if not text:
+            return CsvError(path, "empty value", line, name)
+        try:
+            _loadtxt(fields[col], [0], np.dtype([(name, dtype[name])]))
+        except ValueError:
+            pass
+        else:
+            continue
+        if name in INTEGER_COLUMNS and _is_number(text):
+            unit = "counts nanoseconds" if name == "timestamp_ns" else "is a bit field"
+            return CsvError(path, f"{text!r} is not an integer ({name} {unit})", line, name)
+        return CsvError(path, f"{text!r} is not a number", line, name)
+    return CsvError(path, f"cannot read the line {row.decode('utf-8', 'replace')!r}", line)
+
+
+def _median_norm(v: F64) -> float:
+    return float(np.median(np.sqrt(np.einsum("ij,ij->i", v, v))))
+
+
+def _unit_problems(
+    accel: F64,
+    gyro: F64,
+    temp: F64 | None,
+    mag: F64 | None,
+    units: tuple[AccelUnits, GyroUnits, MagUnits],
+    gravity: float,
+) -> list[tuple[str, str]]:
+    """(columns, what is wrong) for each sensor whose values are off by orders of magnitude
+    in the declared units. The values are those of the file, before conversion."""
+    accel_units, gyro_units, mag_units = units
+    out: list[tuple[str, str]] = []
+
+    a = _median_norm(accel)
+    a_si = a * (gravity if accel_units == "g" else 1.0)
+    if not gravity / ACCEL_RATIO <= a_si <= gravity * ACCEL_RATIO:
+        said = f"the median |accel| is {a:.4g} {accel_units}, not near gravity ({gravity:g} m/s^2)"
+        if accel_units == "m/s2" and 1 / ACCEL_RATIO <= a <= ACCEL_RATIO:
+            hint = "looks like g: pass --accel-units g"
+        elif accel_units == "g" and gravity / ACCEL_RATIO <= a <= gravity * ACCEL_RATIO:
+            hint = "looks like m/s^2: pass --accel-units m/s2"
+        elif a_si < gravity / 30:
+            hint = "is gravity removed (linear acceleration)? calibration needs what the chip read"
+        else:
+            hint = "milli-g or raw counts? convert to m/s^2 or g"
+        out.append(("ax, ay, az", f"{said}: {hint}"))
+
+    w = float(np.percentile(np.max(np.abs(gyro), axis=1), 99))
+    w_si = w * (math.pi / 180 if gyro_units == "dps" else 1.0)
+    if w_si > GYRO_MAX_RAD_S:
+        said = (
+            f"|gyro| reaches {w:.4g} {gyro_units} in 1 % of samples, beyond any MEMS gyro's range "
+            f"({GYRO_MAX_RAD_S:g} rad/s = 2000 deg/s)"
+        )
+        if gyro_units == "rad/s" and w * math.pi / 180 <= GYRO_MAX_RAD_S:
+            hint = "looks like dps: pass --gyro-units dps"
+        else:
+            hint = "raw counts? convert to rad/s or deg/s"
+        out.append(("gx, gy, gz", f"{said}: {hint}"))
+
+    if mag is not None:
+        m = _median_norm(mag)
+        m_si = m * (1e-6 if mag_units == "uT" else 1.0)
+        lo, hi = MAG_RANGE_T
+        if not lo <= m_si <= hi:
+            said = (
+                f"the median |mag| is {m:.4g} {mag_units}, not near the Earth's field "
+                "(25-65 uT = 2.5e-5..6.5e-5 T)"
+            )
+            if mag_units == "T" and lo * 1e6 <= m <= hi * 1e6:
+                hint = "looks like uT: pass --mag-units uT"
+            elif mag_units == "uT" and lo <= m <= hi:
+                hint = "looks like tesla: pass --mag-units T"
+            elif 0.1 <= m < 1:
+                hint = "looks like gauss: multiply by 100 and pass --mag-units uT"
+            else:
+                hint = "convert to tesla or uT"
+            out.append(("mx, my, mz", f"{said}: {hint}"))
+
+    if temp is not None:
+        c = float(np.median(temp))
+        if not TEMP_RANGE_C[0] <= c <= TEMP_RANGE_C[1]:
+            hint = "looks like kelvin" if 200 <= c <= 450 else "raw counts?"
+            out.append(("temp", f"the median temp is {c:.4g}, not degC: {hint}; convert to degC"))
+    return out
+
+
+def read_csv(
+    path: Path,
+    accel_units: AccelUnits = "m/s2",
+    gyro_units: GyroUnits = "rad/s",
+    mag_units: MagUnits = "T",
+    gravity: float = 9.80665,
+) -> Recording:
+    """Read a recording (docs/recording-csv.md) into SI units.
+
+    accel_units "g" multiplies by `gravity` (pass the local g the file's tool used, if it said);
+    gyro_units "dps" converts deg/s to rad/s; mag_units "uT" converts to tesla. Raises CsvError
+    for a file that cannot be used as it is, naming the line and column."""
+    path = Path(path)
+    if accel_units not in ("m/s2", "g"):
+        raise ValueError(f"accel_units must be 'm/s2' or 'g', not {accel_units!r}")
+    if gyro_units not in ("rad/s", "dps"):
+        raise ValueError(f"gyro_units must be 'rad/s' or 'dps', not {gyro_units!r}")
+    if mag_units not in ("T", "uT"):
+        raise ValueError(f"mag_units must be 'T' or 'uT', not {mag_units!r}")
+    if not (math.isfinite(gravity) and gravity > 0):
+        raise ValueError(f"gravity must be a positive number of m/s^2, not {gravity!r}")
+
+    buf = path.read_bytes()
+    buf = buf.removeprefix(b"\xef\xbb\xbf")  # the UTF-8 byte order mark some editors write
+    if b"\r" in buf:  # Windows (CRLF) or old Mac (CR) line ends
+        buf = buf.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+    data = np.frombuffer(buf, np.uint8)
+    lines = _scan(data)
+    content = np.flatnonzero(lines.content)
+    if content.size == 0:
+        raise CsvError(path, "no header row: the file has only comments or blank lines")
+    h = int(content[0])
+    header_line = h + 1
+    header_text = buf[lines.start[h] : lines.stop[h]].decode("utf-8", "replace")
+    header = [_normalise(x) for x in header_text.split(",")]
+    index = _columns(path, header_line, header)
+
+    rows = content[1:]
+    line_of = rows + 1  # line number (1-based) of each data row
+    wrong = np.flatnonzero(lines.commas[rows] != len(header) - 1)
+    if wrong.size:
+        k = int(wrong[0])
+        found = int(lines.commas[rows[k]]) + 1
+        column = (header[found] or None) if found < len(header) else None
+        raise CsvError(
+            path,
+            f"{found} fields where the header (line {header_line}) names {len(header)}"
+            + (": the line ends before this column" if column else "")
+            + " (a truncated or merged line?)",
+            int(line_of[k]),
+            column,
+        )
+    if rows.size < 2:
+        plural = "" if rows.size == 1 else "s"
+        raise CsvError(path, f"{rows.size} sample{plural}: at least 2 are needed")
+
+    names = list(index)
+    usecols = [index[n] for n in names]
+    dtype = np.dtype([(n, np.int64 if n in INTEGER_COLUMNS else np.float64) for n in names])
+    text = _data_bytes(buf, data, lines, rows)
+    try:
+        table = _loadtxt(text, usecols, dtype)
+    except ValueError:
+        blob = text.split(b"\n")[: rows.size]
+        k = _first_bad_row(blob, usecols, dtype)
+        raise _conversion_error(path, int(line_of[k]), blob[k], index, dtype) from None
+    return _recording(path, table, line_of, (accel_units, gyro_units, mag_units), gravity)
+
+
+def _recording(
+    path: Path,
+    table: npt.NDArray[np.void],
+    line_of: I64,
+    units: tuple[AccelUnits, GyroUnits, MagUnits],
+    gravity: float,
+) -> Recording:
+    """Checks on the parsed values (finite, increasing, plausible units), then SI units."""
+    names = table.dtype.names or ()
+    first_bad: dict[str, int] = {}  # column -> first row where it is NaN or infinite
+    for name in names:
+        if name not in INTEGER_COLUMNS:
+            bad = np.flatnonzero(~np.isfinite(table[name]))
+            if bad.size:
+                first_bad[name] = int(bad[0])
+    if first_bad:
+        name = min(first_bad, key=lambda n: (first_bad[n], names.index(n)))
+        k = first_bad[name]
+        raise CsvError(
+            path,
+            f"{table[name][k]} is not a finite number (a sample marked invalid? drop the row)",
+            int(line_of[k]),
+            name,
+        )
+    t = np.ascontiguousarray(table["timestamp_ns"])
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if back.size:
+        k = int(back[0])
+        raise CsvError(
+            path,
+            f"{t[k + 1]} is not after {t[k]} on line {line_of[k]}: timestamps must strictly "
+            "increase (a duplicated or reordered row?)",
+            int(line_of[k + 1]),
+            "timestamp_ns",
+        )
+    saturated = None
+    if "flags" in names:
+        flags = table["flags"]
+        out_of_range = np.flatnonzero((flags < 0) | (flags > 0xFFFFFFFF))
+        if out_of_range.size:
+            k = int(out_of_range[0])
+            raise CsvError(path, f"{flags[k]} is not a 32-bit flag word", int(line_of[k]), "flags")
+        saturated = (flags & SATURATED_MASK) != 0
+
+    def vec(a: str, b: str, c: str) -> F64:
+        return np.column_stack([table[a], table[b], table[c]])
+
+    accel, gyro = vec("ax", "ay", "az"), vec("gx", "gy", "gz")
+    temp = np.ascontiguousarray(table["temp"], np.float64) if "temp" in names else None
+    mag = vec("mx", "my", "mz") if "mx" in names else None
+    problems = _unit_problems(accel, gyro, temp, mag, units, gravity)
+    if problems:
+        cols = "; ".join(c for c, _ in problems)
+        raise CsvError(path, "; ".join(p for _, p in problems), None, cols)
+    accel_units, gyro_units, mag_units = units
+    if accel_units == "g":
+        accel *= gravity
+    if gyro_units == "dps":
+        gyro *= math.pi / 180
+    if mag is not None and mag_units == "uT":
+        mag *= 1e-6
+    return Recording(t, accel, gyro, temp, mag, saturated, str(path))
+
+
+def read_comments(path: Path) -> dict[str, str]:
+    """The `# key: value` lines before the header (imud writes device, chip, samples raw or
+    corrected, date there), read without reading the rest of the file."""
+    out: dict[str, str] = {}
+    with open(path, encoding="utf-8-sig", errors="replace") as f:
+        for raw in f:
+            line = raw.strip()
+            if not line:
+                continue
+            if not line.startswith("#"):
+                break
+            key, sep, value = line[1:].partition(":")
+            if sep and key.strip():
+                out[key.strip()] = value.strip()
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# writing
+
+
+class CsvWriter:
+    """Writes a recording in imud's CSV format; a context manager.
+
+    The rows go to a temporary file beside `path`, renamed onto `path` by close(): a reader
+    never sees half a file. If the block raises (or abort() is called) the rows so far are kept
+    as `<path>.partial` and the exception gets a note saying where. The writer refuses what
+    read_csv would refuse (NaN, timestamps not increasing), so every file it closes reads back.
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        *,
+        has_temp: bool = False,
+        has_mag: bool = False,
+        has_flags: bool = False,
+        comments: Mapping[str, str] | None = None,
+    ) -> None:
+        self.path = Path(path)
+        self.has_temp, self.has_mag, self.has_flags = has_temp, has_mag, has_flags
+        self.columns = (
+            list(REQUIRED)
+            + (["temp"] if has_temp else [])
+            + (["mx", "my", "mz"] if has_mag else [])
+            + (["flags"] if has_flags else [])
+        )
+        self._row = ",".join("%d" if c in INTEGER_COLUMNS else FLOAT_FORMAT for c in self.columns)
+        self._row += "\n"
+        self.rows = 0
+        self.partial_path: Path | None = None
+        self._last_t: int | None = None
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent
+        )
+        self._tmp = Path(tmp)
+        self._file = os.fdopen(fd, "w", encoding="utf-8", newline="\n")
+        lines = [
+            "# format: imud recording, SI units (m/s^2, rad/s, degC, tesla), docs/recording-csv.md"
+        ]
+        for key, value in (comments or {}).items():
+            k = " ".join(str(key).replace(":", " ").split())
+            lines.append(f"# {k}: {' '.join(str(value).split())}")
+        self._file.write("\n".join(lines) + "\n" + ",".join(self.columns) + "\n")
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if exc is None:
+            self.close()
+            return
+        if self._file.closed:  # closed (complete) or aborted already: nothing left to keep
+            return
+        kept = self.abort()
+        exc.add_note(f"the {self.rows} rows written so far are kept in {kept}")
+
+    def write(
+        self,
+        t_ns: npt.ArrayLike,
+        accel: npt.ArrayLike,
+        gyro: npt.ArrayLike,
+        temp: npt.ArrayLike | None = None,
+        mag: npt.ArrayLike | None = None,
+        flags: npt.ArrayLike | None = None,
+    ) -> None:
+        """Append N samples: t_ns (N,) integer ns, accel (N, 3), gyro (N, 3), temp (N,),
+        mag (N, 3), flags (N,) (each optional one exactly when the writer was opened with it)."""
+        t = np.asarray(t_ns)
+        if t.ndim != 1 or not np.issubdtype(t.dtype, np.integer):
+            raise ValueError(
+                f"t_ns must be a 1-D integer array of nanoseconds, not {t.dtype}{t.shape}"
+            )
+        n = t.shape[0]
+        cols: list[npt.NDArray[np.generic]] = [t.astype(np.int64)]
+        for name, arr, width, wanted in (
+            ("accel", accel, 3, True),
+            ("gyro", gyro, 3, True),
+            ("temp", temp, 1, self.has_temp),
+            ("mag", mag, 3, self.has_mag),
+            ("flags", flags, 1, self.has_flags),
+        ):
+            if (arr is None) == wanted:
+                said = "missing: the writer was opened with" if wanted else "given: no"
+                raise ValueError(f"{name} {said} that column")
+            if arr is None:
+                continue
+            shape = (n,) if width == 1 else (n, width)
+            if name == "flags":
+                f = np.asarray(arr)
+                if f.shape != shape or not np.issubdtype(f.dtype, np.integer):
+                    raise ValueError(f"flags must be (N,) integers, not {f.dtype}{f.shape}")
+                if f.size and (int(f.min()) < 0 or int(f.max()) > 0xFFFFFFFF):
+                    raise ValueError("flags must be 32-bit unsigned words")
+                cols.append(f.astype(np.int64))
+                continue
+            a = np.asarray(arr, np.float64)
+            if a.shape != shape:
+                raise ValueError(f"{name} has shape {a.shape}, expected {shape}")
+            a = a.reshape(n, width)
+            bad = np.flatnonzero(~np.isfinite(a).all(axis=1))
+            if bad.size:
+                raise ValueError(f"{name} is not finite in sample {bad[0]} of this batch")
+            cols.extend(a.T)
+        if n == 0:
+            return
+        steps = np.diff(t.astype(np.int64))
+        back = np.flatnonzero(steps <= 0)
+        if back.size or (self._last_t is not None and int(t[0]) <= self._last_t):
+            at = int(back[0]) + 1 if back.size else 0
+            raise ValueError(f"t_ns does not increase at sample {at} of this batch")
+        self._write_rows(cols, n)
+        self._last_t = int(t[-1])
+        self.rows += n
+
+    def _write_rows(self, cols: list[npt.NDArray[np.generic]], n: int) -> None:
+        """One %-format of a repeated row template over all values: the formatting loop runs in
+        C, twice as fast as np.savetxt (which formats row by row in Python)."""
+        table = np.empty((n, len(cols)), dtype=object)
+        for j, c in enumerate(cols):
+            table[:, j] = c.tolist()  # Python ints stay exact: int64 ns need all 19 digits
+        for a in range(0, n, _CHUNK_ROWS):
+            chunk = table[a : a + _CHUNK_ROWS]
+            self._file.write((self._row * chunk.shape[0]) % tuple(chunk.ravel().tolist()))
+
+    def close(self) -> None:
+        """Flush, and rename the finished file onto `path` (atomic; durable once returned)."""
+        if self._file.closed:
+            return
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._file.close()
+        os.replace(self._tmp, self.path)
+        dfd = os.open(self.path.parent, os.O_RDONLY | os.O_DIRECTORY)
+        try:
+            os.fsync(dfd)  # the rename itself is durable only once the directory is
+        finally:
+            os.close(dfd)
+
+    def abort(self) -> Path:
+        """Stop, keeping the rows written so far as `<path>.partial`; returns that path."""
+        partial = self.path.with_name(self.path.name + ".partial")
+        if not self._file.closed:
+            with contextlib.suppress(OSError):
+                self._file.flush()
+            self._file.close()
+            os.replace(self._tmp, partial)
+            self.partial_path = partial
+        return self.partial_path or partial
