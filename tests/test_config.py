@@ -104,7 +104,7 @@ def test_sim_toml_loads_with_both_devices() -> None:
     assert imu0.sim is not None and imu1.sim is not None
     assert (imu0.sim.seed, imu1.sim.seed) == (1, 2)
     assert imu0.sim.motion.kind == "still"
-    assert imu1.sim.motion.kind == "tumble"
+    assert imu1.sim.motion.kind == "poses"
     assert cfg.zenoh.listen == ["tcp/127.0.0.1:7447"]
     assert cfg.zenoh.prefix == "imud"
 
@@ -383,14 +383,17 @@ def test_absolute_calibration_path_kept(tmp_path: Path) -> None:
 
 
 def problems_of(cfg_path: Path) -> list[str]:
-    return calibration_problems(load_config(cfg_path))
+    errors, _notes = calibration_problems(load_config(cfg_path))
+    return errors
 
 
 def test_missing_calibration_file(tmp_path: Path) -> None:
-    # a bad calibration file must not stop the daemon: the config loads, the check reports it
+    # not written yet: the config loads, the check notes it (the daemon picks it up later)
     conf_dir = tmp_path / "etc"
+    (conf_dir / "cal").mkdir(parents=True)
     cfg_path = write(conf_dir, GOOD_DEVICE + mpu_device(calibration='"cal/missing.toml"'))
-    (msg,) = problems_of(cfg_path)
+    errors, (msg,) = calibration_problems(load_config(cfg_path))
+    assert errors == []
     assert "device[1]" in msg and "'imu1'" in msg
     assert "calibration" in msg and "does not exist" in msg and "imud calibrate" in msg
     assert str(conf_dir.resolve() / "cal" / "missing.toml") in msg  # the resolved path
@@ -405,6 +408,8 @@ def test_invalid_calibration_file_reported_per_device(tmp_path: Path) -> None:
 
 
 def test_every_bad_calibration_reported(tmp_path: Path) -> None:
+    write(tmp_path, "[accel]\nbias = [nan, 0, 0]\n", "a.toml")
+    write(tmp_path, "[gyro]\nscale = [1, 1, 0]\n", "b.toml")
     text = mpu_device(name="a", address=0x68, calibration='"a.toml"') + mpu_device(
         name="b", address=0x69, calibration='"b.toml"'
     )

@@ -16,19 +16,18 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from imud.errors import ConfigError
 from imud.status import DeviceState
 
 if TYPE_CHECKING:
     from rich.console import Console, RenderableType
 
-    from imud.config import ImudConfig
 
 from imud.cli.common import (
     EXIT_USAGE,
     _ask_status,
     _connect,
     _device,
+    _load,
     _no_answer,
     _prefix,
     _session,
@@ -38,18 +37,6 @@ from imud.cli.echo_view import Samples, Summary, arrivals
 from imud.cli.status_view import cut, status_view
 
 ECHO_STATUS_TIMEOUT_S = 1.0  # echo's status question: a wrong name must fail within 2 s
-
-
-def _load(path: str) -> ImudConfig:
-    from imud.config import load_config
-
-    try:
-        return load_config(path)
-    except ConfigError as e:
-        click.echo(f"{path}: invalid config:", err=True)
-        for m in e.messages:
-            click.echo(f"  {m}", err=True)
-        sys.exit(EXIT_USAGE)
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -118,10 +105,12 @@ def check_config(file: str, as_json: bool) -> None:
         sys.exit(EXIT_USAGE)
     from imud.config import calibration_problems
 
-    problems = calibration_problems(cfg)
+    problems, notes = calibration_problems(cfg)
     if problems:  # the daemon would run these devices uncalibrated: say so, and fail the check
         click.echo(f"{file}: invalid config:\n  " + "\n  ".join(problems), err=True)
         sys.exit(EXIT_USAGE)
+    for note in notes:  # not yet calibrated: the daemon runs it uncalibrated until the file exists
+        click.echo(f"note: {note}", err=True)
     if as_json:
         click.echo(json.dumps(cfg.model_dump(mode="json"), indent=2))
         return
@@ -278,6 +267,12 @@ def echo(
         finally:
             sub.undeclare()
 
+
+from imud.cli.calibrate import calibrate  # noqa: E402  (registered on `main` below)
+from imud.cli.record import record  # noqa: E402
+
+main.add_command(calibrate)
+main.add_command(record)
 
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -10,7 +10,8 @@ from typing import Any, NoReturn
 
 import click
 
-from imud.config import DEFAULT_ENDPOINT
+from imud.config import DEFAULT_ENDPOINT, ImudConfig
+from imud.errors import ConfigError
 from imud.zerrors import endpoint_problem
 
 EXIT_NO_DAEMON = 1
@@ -102,3 +103,16 @@ def _device(
         _fail(why, EXIT_USAGE, as_json)
     found: dict[str, Any] = dev
     return found
+
+
+def _load(path: str) -> ImudConfig:
+    """The config through `load_config`, or its errors, one per line, and exit 2."""
+    from imud.config import load_config
+
+    try:
+        return load_config(path)
+    except ConfigError as e:
+        click.echo(f"{path}: invalid config:", err=True)
+        for m in e.messages:
+            click.echo(f"  {m}", err=True)
+        sys.exit(EXIT_USAGE)

@@ -1,0 +1,656 @@
+"""Gyroscope calibration: bias from still data, and the full matrix from rotations between still
+poses (corrected = C (raw - b)).
+
+Bias. The mean of a still recording, with its standard error from the data's own noise (block
+averaging, imud/calib/still.py), so coloured noise and slow drift widen the error bar instead of
+hiding in it. Earth's rotation (7.292115e-5 rad/s, 15 deg/h) is inside any still bias: a gyro at
+rest measures its projection on the sensor axes, which depends on latitude and heading. It is
+not subtracted here (neither is known); `details["earth_rate_rad_s"]` reports its size beside
+the bias's standard error so a person can see whether it matters at their noise level.
+
+Scale and misalignment (imu_tk's method, with uncertainty). Between two still poses the sensor is
+turned by hand or by a table; the accelerometer gives gravity's direction in the body frame
+before (u_k) and after (u_k+1). Integrating C (w - b) over the motion gives a rotation R, and a
+right C makes R^T u_k = u_k+1. Each motion gives two equations (a direction has two degrees of
+freedom); C has nine entries, so at least five motions are needed. Integration composes the exact
+per-sample rotations exp(C (w_i - b) dt_i) (a rate held over each sample period), all motion
+samples at once: the cumulative product is a blocked scan (sqrt(N) batched 3x3 products, not a
+loop over samples), and the Jacobian is analytic: a change dC moves the end rotation by
+dtheta = sum_i X_i^T J_r(phi_i) dC (w_i - b) dt_i, X_i the rotation from sample i to the end and
+J_r the right Jacobian of the rotation exponential. Residuals are weighted by their full noise
+covariance: the noise of both accelerometer means (shared by consecutive motions), the gyro's
+white noise integrated over the motion (angle random walk N^2 T), and the bias's own uncertainty
+(common to all motions); the fit is generalised least squares (Gauss-Newton, Levenberg-Marquardt
+damping) and its covariance is (J^T V^-1 J)^-1, not rescaled; chi-squared tests the noise model.
+
+The blind spot. A turn about the vertical leaves gravity where it was, so a rotation's scale
+about an axis that was vertical whenever the sensor turned about it is invisible: the Fisher
+information has a (near) null direction, dC = v v^T for that axis v. It is detected from the
+covariance and named; with full_turns=True the caller says every motion that returned to its
+starting pose was a whole number of turns (a turntable, a Ferraris session), which adds the
+residual log(R) = 0 (the integrated angle is 2 pi k, k the nearest whole number) for those
+motions and fixes that scale.
+
+Uncorrected effects, worth knowing: Earth's rotation while the sensor turns (the still bias holds
+its projection in the starting pose only: ~7e-5 rad/s times the motion's duration), and
+g-sensitivity of the gyro; both are far below the hand-placement noise of a typical session.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from imud.calib.estimate import AffineEstimate, Fit, Verdict
+from imud.calib.recording import Recording
+from imud.calib.stats import chi2_sf
+from imud.calib.still import (
+    CalibrationRefused,
+    StillInterval,
+    check_still,
+    find_still,
+    interval_stats,
+)
+
+F64 = npt.NDArray[np.float64]
+
+EARTH_RATE_RAD_S = 7.292115e-5  # WGS84 (NIMA TR8350.2 Table 3.1)
+MIN_BIAS_S = 1.0
+TEMP_LIMIT_C = 0.2
+SAME_POSE_DEG = 10.0
+WHOLE_TURN_RAD = math.pi / 4  # a motion that brings gravity back within this returned to its pose
+OBSERVABLE_SIGMA = 0.01  # a direction of C known worse than 1 % is not determined by the data
+AXES = "xyz"
+BIAS_NAMES = ("b_x", "b_y", "b_z")
+C_NAMES = tuple(f"C_{AXES[i]}{AXES[j]}" for i in range(3) for j in range(3))
+
+
+def fit_gyro_bias(rec: Recording) -> AffineEstimate:
+    """The gyro bias (procedure "gyro-bias", matrix identity) from a still recording.
+
+    Its covariance is that of the mean from the data's own noise (block averaging). Residuals:
+    rms of the samples about the bias (rad/s), chi2 of ~1 s segment means against the scatter
+    that covariance predicts (drift or a step shows up there), and the noise density
+    N = se * sqrt(T) (rad/s/sqrt(Hz), Allan N convention: a T-second mean has sigma N / sqrt(T)).
+    Rejected when the recording is not still (and when it moved), when the temperature changed
+    by more than 0.2 degC, or when a sample hit full scale. Earth's rotation is inside the bias:
+    see the module docstring."""
+    if rec.n < 2:
+        raise CalibrationRefused(f"{rec.source or 'the recording'} has no samples")
+    duration = float(rec.t_ns[-1] - rec.t_ns[0]) * 1e-9
+    if duration < MIN_BIAS_S:
+        raise CalibrationRefused(
+            f"{rec.source or 'the recording'} lasts {duration:.2f} s; a gyro bias needs at least "
+            f"{MIN_BIAS_S:g} s of still data (its error falls as 1/sqrt(T): a minute or more is "
+            "better)"
+        )
+    whole = interval_stats(rec, 0, rec.n)
+    bias, cov = whole.gyro, whole.gyro_cov
+    se = np.sqrt(np.diag(cov))
+    density = se * math.sqrt(duration)
+    dev = rec.gyro - bias
+    sample_sd = np.sqrt(np.mean(dev * dev, axis=0))
+    white = sample_sd / math.sqrt(rec.rate_hz)
+    segments = int(min(20, max(2, duration // 1.0)))
+    length = rec.n // segments
+    seg = rec.gyro[: segments * length].reshape(segments, length, 3).mean(axis=1)
+    predicted = np.diag(cov) * rec.n / length
+    chi2 = float(np.sum((seg - bias) ** 2 / predicted))
+    dof = 3 * (segments - 1)
+    p_value = chi2_sf(chi2, dof)
+
+    reasons: list[str] = []
+    ok = True
+    check = check_still(rec)
+    if not check.still:
+        ok = False
+        reasons.append(check.reason)
+    elif p_value < 0.01:
+        ok = False
+        reasons.append(
+            f"the gyro's mean wandered during the recording: its {segments} segment means "
+            f"scatter {math.sqrt(chi2 / dof):.1f} times their predicted noise (chi2 {chi2:.1f}, "
+            f"dof {dof}, p {p_value:.2g}); a temperature change or a bump: let the sensor warm "
+            "up and record again"
+        )
+    if whole.temp_change_c is not None and abs(whole.temp_change_c) > TEMP_LIMIT_C:
+        ok = False
+        reasons.append(
+            f"the temperature changed by {whole.temp_change_c:+.2f} degC during the recording "
+            f"(more than {TEMP_LIMIT_C} degC), which moves the bias: let the sensor warm up and "
+            "record again, or calibrate temperature first"
+        )
+    if whole.saturated:
+        ok = False
+        reasons.append("samples hit full scale: this is not a still recording; record again")
+    earth_vs_se = EARTH_RATE_RAD_S / float(np.max(se))
+    details: dict[str, Any] = {
+        "duration_s": duration,
+        "noise_density": density.tolist(),
+        "white_noise_density": white.tolist(),
+        "segments": segments,
+        "earth_rate_rad_s": EARTH_RATE_RAD_S,
+        "earth_rate_over_sigma": earth_vs_se,
+        "earth_rate_note": (
+            f"Earth's rotation ({EARTH_RATE_RAD_S:.3e} rad/s) is inside this bias, up to "
+            f"{earth_vs_se:.1f} times its standard error, depending on latitude and heading"
+        ),
+        "moved_s": [list(s) for s in check.moved],
+        "temp_change_c": whole.temp_change_c,
+    }
+    fit = Fit(
+        BIAS_NAMES,
+        bias.copy(),
+        cov,
+        {
+            "rms": float(np.sqrt(np.mean(sample_sd**2))),
+            "chi2": chi2,
+            "dof": float(dof),
+            "p_value": p_value,
+            "noise": float(np.sqrt(np.mean(density**2))),
+        },
+        details,
+    )
+    return AffineEstimate(
+        sensor="gyro",
+        procedure="gyro-bias",
+        bias=bias.copy(),
+        matrix=np.eye(3),
+        fit=fit,
+        verdict=Verdict(ok, tuple(reasons)),
+        temperature_c=whole.temp_c,
+    )
+
+
+# ---- rotations --------------------------------------------------------------------------------
+
+
+def _skew(v: F64) -> F64:
+    out = np.zeros((*v.shape[:-1], 3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def _exp_and_jr(phi: F64) -> tuple[F64, F64]:
+    """exp([phi]x) and the right Jacobian J_r(phi) for each row of phi (M, 3), with series
+    expansions where the angle is small."""
+    th2 = np.einsum("mi,mi->m", phi, phi)
+    th = np.sqrt(th2)
+    small = th < 1e-4
+    safe = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 - th2 / 6.0, np.sin(safe) / safe)  # sin t / t
+    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(safe)) / safe**2)  # (1 - cos t) / t^2
+    c = np.where(small, 1.0 / 6.0 - th2 / 120.0, (safe - np.sin(safe)) / safe**3)
+    k = _skew(phi)
+    k2 = phi[:, :, None] * phi[:, None, :] - th2[:, None, None] * np.eye(3)  # [phi]x^2
+    eye = np.eye(3)
+    e = eye + a[:, None, None] * k + b[:, None, None] * k2
+    jr = eye - b[:, None, None] * k + c[:, None, None] * k2
+    return e, jr
+
+
+def _log(r: F64) -> F64:
+    """Rotation vector of one rotation matrix (angle in [0, pi])."""
+    cos = min(1.0, max(-1.0, (float(np.trace(r)) - 1.0) / 2.0))
+    angle = math.acos(cos)
+    w = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    if angle < 1e-6:
+        out: F64 = 0.5 * w
+        return out
+    if angle > math.pi - 1e-4:  # near pi: axis from the symmetric part
+        s = (r + np.eye(3)) / 2.0
+        axis = s[int(np.argmax(np.diag(s)))]
+        axis = axis / np.linalg.norm(axis)
+        if float(axis @ w) < 0:
+            axis = -axis
+        out = angle * axis
+        return out
+    out = angle / (2.0 * math.sin(angle)) * w
+    return out
+
+
+def _jr_inv(rho: F64) -> F64:
+    th = float(np.linalg.norm(rho))
+    k = _skew(rho)
+    if th < 1e-6:
+        out: F64 = np.eye(3) + 0.5 * k
+        return out
+    coef = 1.0 / th**2 - (1.0 + math.cos(th)) / (2.0 * th * math.sin(th))
+    out = np.eye(3) + 0.5 * k + coef * (k @ k)
+    return out
+
+
+def cumulative_product(e: F64) -> F64:
+    """Inclusive running products e[0] @ e[1] @ ... @ e[i] of (M, 3, 3) matrices: a blocked scan
+    (products within sqrt(M) blocks in parallel, then the blocks' own running product,
+    recursively), so the Python loop runs ~2 sqrt(M) times on batches, never per sample."""
+    m = e.shape[0]
+    if m <= 64:
+        out = e.copy()
+        for i in range(1, m):
+            out[i] = out[i - 1] @ out[i]
+        return out
+    size = math.isqrt(m)
+    nb = -(-m // size)
+    x = np.broadcast_to(np.eye(3), (nb * size, 3, 3)).copy()
+    x[:m] = e
+    x = x.reshape(nb, size, 3, 3)
+    for j in range(1, size):
+        x[:, j] = x[:, j - 1] @ x[:, j]
+    before = cumulative_product(x[:, -1])  # running product of whole blocks
+    x[1:] = before[:-1, None] @ x[1:]
+    out = x.reshape(nb * size, 3, 3)[:m]
+    return out
+
+
+# ---- the full fit -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Motion:
+    before: int  # interval index
+    after: int
+    lo: int  # sample range [lo, hi) whose held rates carry the pose before to the pose after
+    hi: int
+    returns: bool  # gravity came back to (near) where it was (with full_turns: a whole turn)
+
+
+@dataclass(frozen=True)
+class _Integrated:
+    rot: F64  # (S, 3, 3) rotation over each motion
+    g: F64  # (S, 3, 9): d(end rotation vector) / d vec(C)
+    h: F64  # (S, 3, 3): sum of X_i^T J_r dt, for the bias
+    angle: F64  # (S,) unwrapped |sum phi| (for counting turns)
+
+
+def _integrate(c: F64, w: F64, dt: F64, starts: F64) -> _Integrated:
+    """All motions at once: w (M, 3) bias-free raw rates, dt (M,), motion s = samples
+    starts[s]..starts[s+1]-1 of the concatenation."""
+    phi = (w @ c.T) * dt[:, None]
+    e, jr = _exp_and_jr(phi)
+    pre = cumulative_product(e)
+    idx = np.asarray(starts[:-1], dtype=np.intp)
+    ends = np.asarray(starts[1:], dtype=np.intp) - 1
+    seg = np.repeat(np.arange(idx.shape[0]), np.diff(starts).astype(np.intp))
+    base = np.where(idx[:, None, None] > 0, pre[np.maximum(idx - 1, 0)], np.eye(3))
+    local = np.swapaxes(base, 1, 2)[seg] @ pre  # product from the motion's start to i
+    rot = local[ends]
+    k = np.swapaxes(rot, 1, 2)[seg] @ local @ jr  # X_i^T J_r(phi_i)
+    wdt = w * dt[:, None]
+    # G[x, a, b] = sum_i K_i[x, a] (w_i dt_i)[b]: one small matrix product per motion
+    g = np.array(
+        [
+            (k[a:z].reshape(-1, 9).T @ wdt[a:z]).reshape(3, 9)
+            for a, z in zip(idx, ends + 1, strict=True)
+        ]
+    )
+    h = np.add.reduceat(k * dt[:, None, None], idx, axis=0)
+    angle = np.linalg.norm(np.add.reduceat(phi, idx, axis=0), axis=1)
+    return _Integrated(rot, g, h, angle)
+
+
+def _basis(u: F64) -> F64:
+    """Two orthonormal rows perpendicular to unit u."""
+    a = np.eye(3)[int(np.argmin(np.abs(u)))]
+    e1 = np.cross(u, a)
+    e1 /= np.linalg.norm(e1)
+    return np.array([e1, np.cross(u, e1)])
+
+
+def _directions(means: F64, c: F64, b: F64) -> F64:
+    v = (means - b) @ c.T
+    out: F64 = v / np.linalg.norm(v, axis=1, keepdims=True)
+    return out
+
+
+def _gravity_directions(
+    intervals: list[StillInterval], accel: AffineEstimate | None
+) -> tuple[F64, F64]:
+    """Unit gravity directions per pose and the covariance (3P, 3P) of all of them together:
+    each pose's own noise, plus the accelerometer calibration's uncertainty, which moves every
+    direction at once (carried through by central differences over its parameters)."""
+    c = np.eye(3) if accel is None else accel.matrix
+    b = np.zeros(3) if accel is None else accel.bias
+    means = np.array([iv.accel for iv in intervals])
+    u = _directions(means, c, b)
+    cov = np.zeros((3 * len(intervals), 3 * len(intervals)))
+    for k, iv in enumerate(intervals):
+        nv = float(np.linalg.norm(c @ (iv.accel - b)))
+        p = (np.eye(3) - np.outer(u[k], u[k])) / nv
+        cov[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = p @ c @ iv.accel_cov @ c.T @ p.T
+    if accel is not None:
+        where = _affine_positions(accel.fit.names)
+        jac = np.zeros((3 * len(intervals), len(where)))
+        for col, (kind, i, j) in enumerate(where):
+            step = 1e-6 * (1.0 if kind == "C" else max(1.0, float(np.abs(b).max())))
+            moved = []
+            for sign in (1.0, -1.0):
+                c2, b2 = c.copy(), b.copy()
+                if kind == "C":
+                    c2[i, j] += sign * step
+                else:
+                    b2[i] += sign * step
+                moved.append(_directions(means, c2, b2).ravel())
+            jac[:, col] = (moved[0] - moved[1]) / (2 * step)
+        idx = [accel.fit.names.index(n) for n in _names_of(where)]
+        cov += jac @ accel.fit.covariance[np.ix_(idx, idx)] @ jac.T
+    return u, cov
+
+
+def _affine_positions(names: tuple[str, ...]) -> list[tuple[str, int, int]]:
+    """("C", row, col) or ("b", axis, 0) for each parameter named C_ab or b_a."""
+    out = []
+    for name in names:
+        kind, _, axes = name.partition("_")
+        if kind == "C" and len(axes) == 2 and set(axes) <= set(AXES):
+            out.append(("C", AXES.index(axes[0]), AXES.index(axes[1])))
+        elif kind == "b" and len(axes) == 1 and axes in AXES:
+            out.append(("b", AXES.index(axes), 0))
+    return out
+
+
+def _names_of(where: list[tuple[str, int, int]]) -> list[str]:
+    return [f"C_{AXES[i]}{AXES[j]}" if k == "C" else f"b_{AXES[i]}" for k, i, j in where]
+
+
+def _bias_of(bias: AffineEstimate | F64 | None, intervals: list[StillInterval]) -> tuple[F64, F64]:
+    if isinstance(bias, AffineEstimate):
+        names = bias.fit.names
+        if names[:3] == BIAS_NAMES:
+            return bias.bias.copy(), bias.fit.covariance[:3, :3].copy()
+        pos = [names.index(n) for n in BIAS_NAMES] if set(BIAS_NAMES) <= set(names) else []
+        cov = bias.fit.covariance[np.ix_(pos, pos)] if pos else np.zeros((3, 3))
+        return bias.bias.copy(), cov
+    if bias is not None:
+        return np.asarray(bias, dtype=np.float64).copy(), np.zeros((3, 3))
+    # combine the still poses' gyro means (inverse-covariance weighted)
+    info = sum(np.linalg.inv(iv.gyro_cov) for iv in intervals)
+    rhs = sum(np.linalg.inv(iv.gyro_cov) @ iv.gyro for iv in intervals)
+    cov = np.linalg.inv(np.asarray(info))
+    return cov @ np.asarray(rhs), cov
+
+
+@dataclass(frozen=True)
+class _Linearised:
+    r: F64  # residuals
+    jac: F64  # d r / d vec(C)
+    d_u: F64  # d r / d (pose gravity directions), (R, 3 * poses)
+    d_theta: F64  # d r / d (each motion's integrated rotation error), (R, 3 * motions)
+    d_b: F64  # d r / d bias, (R, 3)
+    it: _Integrated
+
+
+def _linearise(
+    c: F64,
+    w: F64,
+    dt: F64,
+    starts: F64,
+    u: F64,
+    motions: list[_Motion],
+    full_turns: bool,
+) -> _Linearised:
+    """Residuals and their derivatives. Gravity rows: B (R^T u_before - u_after), B two axes
+    perpendicular to u_after; a change dtheta of the end rotation moves R^T u by [p]x dtheta.
+    Turn rows (full_turns, motions back to their pose): log(R), moved by J_r^-1 dtheta."""
+    it = _integrate(c, w, dt, starts)
+    n_rows = sum(2 + (3 if full_turns and m.returns else 0) for m in motions)
+    r = np.zeros(n_rows)
+    jac = np.zeros((n_rows, 9))
+    d_u = np.zeros((n_rows, 3 * u.shape[0]))
+    d_theta = np.zeros((n_rows, 3 * len(motions)))
+    d_b = np.zeros((n_rows, 3))
+    row = 0
+    for s, m in enumerate(motions):
+        rot, g, hc = it.rot[s], it.g[s], -it.h[s] @ c
+        p = rot.T @ u[m.before]
+        basis = _basis(u[m.after])
+        bp = basis @ _skew(p)
+        rows = slice(row, row + 2)
+        r[rows] = basis @ (p - u[m.after])
+        jac[rows] = bp @ g
+        d_u[rows, 3 * m.before : 3 * m.before + 3] += basis @ rot.T
+        d_u[rows, 3 * m.after : 3 * m.after + 3] -= basis
+        d_theta[rows, 3 * s : 3 * s + 3] = bp
+        d_b[rows] = bp @ hc
+        row += 2
+        if full_turns and m.returns:
+            rho = _log(rot)
+            jinv = _jr_inv(rho)
+            rows = slice(row, row + 3)
+            r[rows] = rho
+            jac[rows] = jinv @ g
+            d_theta[rows, 3 * s : 3 * s + 3] = jinv
+            d_b[rows] = jinv @ hc
+            row += 3
+    return _Linearised(r, jac, d_u, d_theta, d_b, it)
+
+
+def _block_diag(blocks: F64) -> F64:
+    k = blocks.shape[0]
+    out = np.zeros((3 * k, 3 * k))
+    for i in range(k):
+        out[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] = blocks[i]
+    return out
+
+
+def _unobservable(cov_c: F64) -> str | None:
+    """The worst-determined direction of C, named, when the data cannot fix it to 1 %."""
+    vals, vecs = np.linalg.eigh(cov_c)
+    sigma = math.sqrt(max(float(vals[-1]), 0.0))
+    if sigma <= OBSERVABLE_SIGMA:
+        return None
+    m = vecs[:, -1].reshape(3, 3)
+    sym_vals, sym_vecs = np.linalg.eigh(0.5 * (m + m.T))
+    k = int(np.argmax(np.abs(sym_vals)))
+    axis = sym_vecs[:, k]
+    axis = axis if axis[int(np.argmax(np.abs(axis)))] > 0 else -axis
+    share = abs(float(axis @ m @ axis)) / float(np.linalg.norm(m))
+    name = AXES[int(np.argmax(np.abs(axis)))]
+    where = "(" + ", ".join(f"{a:.2f}" for a in axis) + ")"
+    if share > 0.9:
+        return (
+            f"the gyro's scale about its {name} axis {where} is not determined (sigma "
+            f"{100 * sigma:.0f} %): it only turned about that axis while the axis was vertical, "
+            "which leaves gravity unchanged; turn it about that axis while it lies horizontal, or "
+            "make whole turns (a turntable) and pass --full-turns (full_turns=True)"
+        )
+    return (
+        f"a combination of the gyro matrix is not determined (sigma {100 * sigma:.0f} %, mostly "
+        f"the {name} axis {where}): add rotations about all three axes between still poses"
+    )
+
+
+def fit_gyro_full(
+    rec: Recording,
+    intervals: list[StillInterval] | None = None,
+    bias: AffineEstimate | F64 | None = None,
+    full_turns: bool = False,
+    accel: AffineEstimate | None = None,
+) -> AffineEstimate:
+    """Gyro scale and misalignment (a general 3x3 C, procedure "gyro-full") from the rotations
+    between consecutive still poses, with the bias held fixed (see the module docstring).
+
+    intervals: the still poses (None: found in rec). bias: a gyro-bias estimate (its covariance
+    is carried into C's), a (3,) vector (taken as exact), or None (the still poses' combined gyro
+    mean). accel: an accelerometer calibration to correct the gravity directions with (without
+    one, the raw accelerometer's misalignment leaks into C; with one, C maps the gyro into the
+    calibrated accelerometer's frame). full_turns: every motion that returned to its starting
+    pose was a whole number of turns. Raises CalibrationRefused when too few rotations were
+    found; otherwise the verdict says whether C may be used (named undetermined axes, chi2)."""
+    if intervals is None:
+        intervals = find_still(rec)
+    intervals = sorted(intervals, key=lambda iv: iv.start)
+    if len(intervals) < 2:
+        raise CalibrationRefused(
+            f"found {len(intervals)} still poses; the gyro matrix needs rotations between still "
+            "poses: turn the sensor between poses held still for a few seconds"
+        )
+    b, bias_cov = _bias_of(bias, intervals)
+    u, cov_u = _gravity_directions(intervals, accel)
+    cos_same = math.cos(math.radians(SAME_POSE_DEG))
+    motions = [
+        _Motion(k, k + 1, a.end - 1, nxt.start, float(u[k] @ u[k + 1]) > cos_same)
+        for k, (a, nxt) in enumerate(itertools.pairwise(intervals))
+        if nxt.start > a.end - 1
+    ]
+    if not motions:
+        raise CalibrationRefused("the still poses follow each other with no rotation between")
+    lo = np.array([m.lo for m in motions])
+    hi = np.array([m.hi for m in motions])
+    sel = np.concatenate([np.arange(a, z) for a, z in zip(lo, hi, strict=True)])
+    w = rec.gyro[sel] - b
+    dt = (rec.t_ns[sel + 1] - rec.t_ns[sel]).astype(np.float64) * 1e-9
+    starts = np.concatenate([[0], np.cumsum(hi - lo)]).astype(np.float64)
+    first = starts[:-1].astype(np.intp)
+    durations = np.add.reduceat(dt, first)
+    period = float(np.median(dt))
+    gaps = [k for k, longest in enumerate(np.maximum.reduceat(dt, first)) if longest > 1.5 * period]
+    partial = 0
+    if full_turns:
+        # a motion back to its pose is a whole turn when the raw gyro's net rotation is within
+        # 45 deg of none: no plausible scale error turns a quarter turn about the vertical
+        # into a whole one, so such motions stay ordinary (gravity-only) ones
+        rot0 = _integrate(np.eye(3), w, dt, starts).rot
+        whole = [
+            m.returns and float(np.linalg.norm(_log(r))) < WHOLE_TURN_RAD
+            for m, r in zip(motions, rot0, strict=True)
+        ]
+        partial = sum(m.returns for m in motions) - sum(whole)
+        motions = [replace(m, returns=bool(t)) for m, t in zip(motions, whole, strict=True)]
+    n_turn = 3 * sum(m.returns for m in motions) if full_turns else 0
+    if full_turns and n_turn == 0:
+        raise CalibrationRefused(
+            "full_turns was given but no rotation brought the sensor back to the pose it started "
+            "from after a whole number of turns: drop --full-turns, or turn whole turns"
+        )
+    if 2 * len(motions) + n_turn < len(C_NAMES) + 1:
+        need = math.ceil((len(C_NAMES) + 1 - n_turn) / 2) - len(motions)
+        raise CalibrationRefused(
+            f"found {len(motions)} rotations between still poses; the nine matrix entries need "
+            f"at least {len(motions) + need}: add {need} more turns to new poses, about "
+            "different axes, each followed by a few seconds still"
+        )
+    density = np.median([iv.gyro_se * math.sqrt(max(iv.duration_s, 1e-9)) for iv in intervals], 0)
+    n2 = float(np.mean(density**2))  # angle random walk, isotropic, rad^2/s
+    cov_theta = _block_diag(np.array([n2 * d * np.eye(3) for d in durations]))
+
+    def weights(lin: _Linearised) -> F64:
+        v = (
+            lin.d_u @ cov_u @ lin.d_u.T
+            + lin.d_theta @ cov_theta @ lin.d_theta.T
+            + lin.d_b @ bias_cov @ lin.d_b.T
+        )
+        out: F64 = np.asarray(np.linalg.inv(0.5 * (v + v.T)), dtype=np.float64)
+        return out
+
+    def lin_at(c: F64) -> _Linearised:
+        return _linearise(c, w, dt, starts, u, motions, full_turns)
+
+    c = np.eye(3)
+    lin = lin_at(c)
+    lam = 1e-3
+    iterations = 0
+    for iterations in range(1, 51):  # noqa: B007 (reported below)
+        vinv = weights(lin)
+        cost = float(lin.r @ vinv @ lin.r)
+        info = lin.jac.T @ vinv @ lin.jac
+        grad = lin.jac.T @ vinv @ lin.r
+        ridge = 1e-12 * float(np.trace(info)) * np.eye(9)
+        step = np.linalg.solve(info + lam * np.diag(np.diag(info)) + ridge, -grad)
+        trial = lin_at(c + step.reshape(3, 3))
+        cost2 = float(trial.r @ vinv @ trial.r)
+        if cost2 <= cost:
+            c, lin = c + step.reshape(3, 3), trial
+            lam = max(lam / 10.0, 1e-12)
+            # converged: the step is tiny against the parameters' uncertainty (its length in
+            # the information metric), whatever it does along an undetermined direction
+            if float(step @ info @ step) < 1e-6 or cost - cost2 < 1e-9 * (1.0 + cost):
+                break
+        else:
+            lam *= 10.0
+            if lam > 1e8:  # no step lowers the cost: at the minimum to numerical precision
+                break
+    vinv = weights(lin)
+    info = lin.jac.T @ vinv @ lin.jac
+    cov_c = np.asarray(np.linalg.inv(info + 1e-15 * float(np.trace(info)) * np.eye(9)), np.float64)
+    cross = -cov_c @ lin.jac.T @ vinv @ lin.d_b @ bias_cov
+    cov = np.block([[cov_c, cross], [cross.T, bias_cov]])
+    cov = 0.5 * (cov + cov.T)
+    chi2 = float(lin.r @ vinv @ lin.r)
+    dof = lin.r.shape[0] - 9
+    p_value = chi2_sf(chi2, dof) if dof > 0 else 1.0
+
+    reasons: list[str] = []
+    weak = _unobservable(cov_c)
+    if weak is not None:
+        reasons.append(weak)
+    if p_value < 0.01:
+        reasons.append(
+            f"the rotations disagree with gravity by {math.sqrt(chi2 / dof):.1f} times their "
+            f"noise (chi2 {chi2:.1f}, dof {dof}, p {p_value:.2g}): a pose moved, the sensor was "
+            "not still where it seemed, or samples were lost during a turn"
+            + (", or a turn was not whole" if full_turns else "")
+            + "; capture again"
+        )
+    ok = not reasons
+    if gaps:
+        reasons.append(
+            f"samples are missing inside {len(gaps)} rotation(s) (the first after pose "
+            f"{motions[gaps[0]].before + 1}): the integration holds the last rate over each gap"
+        )
+    it = lin.it
+    motion_details = []
+    for s, m in enumerate(motions):
+        p = it.rot[s].T @ u[m.before]
+        turns = round(float(it.angle[s]) / (2 * math.pi)) if full_turns and m.returns else None
+        motion_details.append(
+            {
+                "from_pose": m.before + 1,
+                "to_pose": m.after + 1,
+                "duration_s": float(durations[s]),
+                "angle_deg": math.degrees(float(it.angle[s])),
+                "residual_deg": math.degrees(float(np.linalg.norm(p - u[m.after]))),
+                "turns": turns,
+            }
+        )
+    details: dict[str, Any] = {
+        "motions": motion_details,
+        "residual_unit": "rad",
+        "iterations": iterations,
+        "accel_calibrated": accel is not None,
+        "full_turns": full_turns,
+        "partial_turns_about_vertical": partial,
+        "earth_rate_rad_s": EARTH_RATE_RAD_S,
+        "information_eigenvalues": np.linalg.eigvalsh(info).tolist(),
+    }
+    fit = Fit(
+        (*C_NAMES, *BIAS_NAMES),
+        np.concatenate([c.ravel(), b]),
+        cov,
+        {
+            "rms": float(np.sqrt(np.mean(lin.r**2))),
+            "chi2": chi2,
+            "dof": float(dof),
+            "p_value": p_value,
+            "noise": math.sqrt(n2),
+        },
+        details,
+    )
+    temps = [iv.temp_c for iv in intervals if iv.temp_c is not None]
+    return AffineEstimate(
+        sensor="gyro",
+        procedure="gyro-full",
+        bias=b,
+        matrix=c,
+        fit=fit,
+        verdict=Verdict(ok, tuple(reasons)),
+        temperature_c=float(np.mean(temps)) if temps else None,
+        gravity=None if accel is None else accel.gravity,
+    )

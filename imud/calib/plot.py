@@ -1,0 +1,72 @@
+"""`imud calibrate ... --plot FILE.png`: what a person checks before trusting a calibration.
+
+accel: each pose's residual (|C (m - b)| - g) with its 1-sigma bar; mag: the field cloud before
+and after correction against the fitted sphere; temp: each axis's reading against temperature
+with the fitted polynomial; gyro: the bias with its uncertainty. Needs matplotlib (the `plot`
+extra); imported only when asked for.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only: no display on a robot
+import matplotlib.pyplot as plt
+import numpy as np
+
+
+def draw(kind: str, outcome: Any, path: Path) -> None:
+    fig = plt.figure(figsize=(10, 6))
+    if kind == "accel":
+        poses = [p for p in outcome.plot.get("poses", []) if isinstance(p, dict)]
+        ax = fig.add_subplot(1, 1, 1)
+        r = np.array([p.get("residual", np.nan) for p in poses]) * 1e3
+        s = np.array([p.get("sigma", np.nan) for p in poses]) * 1e3
+        ax.errorbar(np.arange(1, len(r) + 1), r, yerr=s, fmt="o")
+        ax.axhline(0.0, color="k", lw=0.5)
+        ax.set_xlabel("pose")
+        ax.set_ylabel("|C (m - b)| - g  [mm/s^2]")
+        ax.set_title("accelerometer: residual per still pose (1 sigma bars)")
+    elif kind == "mag":
+        raw = np.asarray(outcome.plot["raw"]) * 1e6
+        cor = (raw / 1e6 - outcome.plot["bias"]) @ np.asarray(outcome.plot["matrix"]).T * 1e6
+        for k, (i, j) in enumerate(((0, 1), (0, 2), (1, 2))):
+            ax = fig.add_subplot(1, 3, k + 1)
+            ax.plot(raw[:, i], raw[:, j], ".", ms=1, label="raw")
+            ax.plot(cor[:, i], cor[:, j], ".", ms=1, label="corrected")
+            ax.set_aspect("equal")
+            ax.set_xlabel(f"{'xyz'[i]} [uT]")
+            ax.set_ylabel(f"{'xyz'[j]} [uT]")
+        fig.axes[0].legend()
+        fig.suptitle("magnetometer: before and after the ellipsoid fit")
+    elif kind == "temp":
+        temp = np.asarray(outcome.plot["temp"])
+        for row, est in enumerate(outcome.plot["estimates"]):
+            data = np.asarray(outcome.plot[est.sensor])
+            x = np.linspace(est.span_c[0], est.span_c[1], 200)
+            for axis in range(3):
+                ax = fig.add_subplot(len(outcome.plot["estimates"]), 3, row * 3 + axis + 1)
+                y = data[:, axis] - np.median(data[:, axis])
+                step = max(1, len(temp) // 5000)
+                ax.plot(temp[::step], y[::step], ".", ms=1)
+                c = est.coefficients[:, axis]
+                fit = sum(c[k] * (x - est.reference_c) ** (k + 1) for k in range(len(c)))
+                ax.plot(x, fit - np.median(fit), "r-")
+                ax.set_title(f"{est.sensor} {'xyz'[axis]} (order {est.order})")
+                ax.set_xlabel("degC")
+    else:
+        ax = fig.add_subplot(1, 1, 1)
+        rep = outcome.report
+        b = np.array(rep["bias"])
+        sig = np.array(
+            [rep["parameters"].get(n, {"sigma": 0.0})["sigma"] for n in ("b_x", "b_y", "b_z")]
+        )
+        ax.bar(["x", "y", "z"], np.degrees(b) * 3600, yerr=np.degrees(sig) * 3600)
+        ax.set_ylabel("bias [deg/h]")
+        ax.set_title("gyro bias (1 sigma)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

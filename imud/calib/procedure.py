@@ -1,0 +1,240 @@
+"""The calibration procedures as the CLI runs them, live or offline: a recording in, an outcome
+out (the estimate, a JSON-able report, the verdict, and how it updates the device's file).
+
+The estimators (accel.py, gyro.py, temp.py, mag.py) know nothing of files or terminals; this
+module is the one place that decides what a procedure reads from the existing calibration (a
+temperature polynomial already in the file is applied before fitting bias and matrix, so the
+new bias is the bias at the polynomial's reference temperature) and what it writes back.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from imud.calib.estimate import AffineEstimate, Fit, TempEstimate
+from imud.calib.file import CalibrationFile, with_affine, with_temperature
+from imud.calib.model import TempPoly
+from imud.calib.recording import Recording
+
+F64 = npt.NDArray[np.float64]
+Kind = Literal["accel", "gyro", "temp", "mag"]
+STANDARD_GRAVITY = 9.80665
+
+
+@dataclass
+class Outcome:
+    """What one procedure concluded. `update` applies it to a calibration file (only called when
+    it was accepted)."""
+
+    kind: Kind
+    accepted: bool
+    reasons: list[str]
+    report: dict[str, Any]
+    update: Callable[[CalibrationFile, str], CalibrationFile]
+    plot: dict[str, Any] = field(default_factory=dict)  # arrays for --plot
+
+
+def compensate(rec: Recording, cf: CalibrationFile | None) -> tuple[Recording, list[str]]:
+    """The recording with the file's temperature polynomials already subtracted (the pipeline
+    applies them before bias and matrix, so the new bias must be estimated after them), and
+    notes saying which were applied."""
+    if cf is None or rec.temp is None:
+        return rec, []
+    notes = []
+    arrays: dict[str, F64 | None] = {"accel": rec.accel, "gyro": rec.gyro, "mag": rec.mag}
+    for name in ("accel", "gyro", "mag"):
+        table = cf.sensor(name)
+        values = arrays[name]
+        if table is None or table.temperature is None or values is None:
+            continue
+        t = table.temperature
+        poly = TempPoly(
+            t.reference_c,
+            np.asarray(t.coefficients, dtype=np.float64),
+            (float(t.span_c[0]), float(t.span_c[1])),
+        )
+        offset, outside = poly.offset(rec.temp)
+        arrays[name] = values - offset
+        note = f"{name}: the file's temperature polynomial (reference {t.reference_c:g} degC)"
+        note += " applied first"
+        if outside.any():
+            note += f"; {int(outside.sum())} samples were outside its span and clamped"
+        notes.append(note)
+    if not notes:
+        return rec, []
+    accel, gyro = arrays["accel"], arrays["gyro"]
+    assert accel is not None and gyro is not None
+    return replace(rec, accel=accel, gyro=gyro, mag=arrays["mag"]), notes
+
+
+# --- reports -------------------------------------------------------------------------------------
+
+
+def _floats(a: Any) -> Any:
+    arr = np.asarray(a, dtype=np.float64)
+    return [_floats(x) for x in arr] if arr.ndim > 1 else [float(x) for x in arr]
+
+
+def fit_report(fit: Fit) -> dict[str, Any]:
+    sig = fit.sigma()
+    return {
+        "parameters": {
+            n: {"value": float(v), "sigma": float(s)}
+            for n, v, s in zip(fit.names, fit.values, sig, strict=True)
+        },
+        "covariance": _floats(fit.covariance),
+        "residuals": {k: float(v) for k, v in fit.residuals.items()},
+    }
+
+
+def affine_report(est: AffineEstimate) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "sensor": est.sensor,
+        "procedure": est.procedure,
+        "bias": _floats(est.bias),
+        "matrix": _floats(est.matrix),
+        **fit_report(est.fit),
+        "accepted": est.verdict.accepted,
+        "reasons": list(est.verdict.reasons),
+    }
+    extras = {"temperature_c": est.temperature_c, "gravity": est.gravity, "field_t": est.field_t}
+    out.update({k: float(v) for k, v in extras.items() if v is not None})
+    return out
+
+
+def temp_report(est: TempEstimate) -> dict[str, Any]:
+    return {
+        "sensor": est.sensor,
+        "procedure": "temp",
+        "reference_c": est.reference_c,
+        "span_c": list(est.span_c),
+        "order": est.order,
+        "coefficients": _floats(est.coefficients),
+        **fit_report(est.fit),
+        "accepted": est.verdict.accepted,
+        "reasons": list(est.verdict.reasons),
+    }
+
+
+def _affine_update(est: AffineEstimate) -> Callable[[CalibrationFile, str], CalibrationFile]:
+    return lambda cf, source: with_affine(cf, est, source)
+
+
+# --- the procedures ------------------------------------------------------------------------------
+
+
+def run_accel(
+    rec: Recording, gravity: float, model: Literal["full", "axes"], min_s: float = 2.0
+) -> Outcome:
+    """Raises CalibrationRefused when no estimate can be formed at all."""
+    from imud.calib.accel import fit_accel
+
+    res = fit_accel(rec, gravity, model, min_s=min_s)
+    est = res.estimate
+    report = affine_report(est)
+    report["orientations"] = res.orientations
+    report["poses"] = est.fit.details.get("poses", [])
+    report["dropped"] = list(res.dropped)
+    if res.seed is not None:
+        report["seed_up_down"] = {"bias": _floats(res.seed.bias), "scale": _floats(res.seed.scale)}
+    reasons = [*res.dropped, *est.verdict.reasons]
+    return Outcome(
+        "accel",
+        est.verdict.accepted,
+        reasons,
+        report,
+        _affine_update(est),
+        {"poses": report["poses"]},
+    )
+
+
+def run_mag(rec: Recording, field_t: float | None) -> Outcome:
+    from imud.calib.mag import fit_mag
+
+    res = fit_mag(rec, field_t)
+    est = res.estimate
+    report = affine_report(est)
+    report["coverage"] = {
+        "fraction": res.coverage.fraction,
+        "required": res.coverage.required,
+        "cells": res.coverage.cells,
+        "missing": list(res.coverage.missing),
+    }
+    report["seed_min_max"] = {
+        "bias": _floats(res.minmax.bias),
+        "matrix": _floats(res.minmax.matrix),
+    }
+    plot = {"raw": rec.mag, "bias": est.bias, "matrix": est.matrix}
+    return Outcome(
+        "mag", est.verdict.accepted, list(est.verdict.reasons), report, _affine_update(est), plot
+    )
+
+
+def run_temp(
+    rec: Recording, sensors: tuple[Literal["accel", "gyro"], ...], max_order: int
+) -> Outcome:
+    from imud.calib.temp import fit_temperature
+
+    ests = [fit_temperature(rec, s, max_order) for s in sensors]
+    accepted = all(e.verdict.accepted for e in ests)
+    reasons = [f"{e.sensor}: {r}" for e in ests for r in e.verdict.reasons]
+
+    def update(cf: CalibrationFile, source: str) -> CalibrationFile:
+        for e in ests:
+            cf = with_temperature(cf, e, source)
+        return cf
+
+    report = {"sensors": {e.sensor: temp_report(e) for e in ests}, "accepted": accepted}
+    plot = {"temp": rec.temp, "estimates": ests, "accel": rec.accel, "gyro": rec.gyro}
+    return Outcome("temp", accepted, reasons, report, update, plot)
+
+
+def local_gravity(
+    gravity: float | None, latitude: float | None, height: float | None
+) -> tuple[float, str]:
+    """The g a procedure uses, and where it came from (said in the output: the default is up
+    to 0.27 % off, and that error lands in the scale factors)."""
+    from imud.calib.gravity import normal_gravity
+
+    if gravity is not None:
+        if latitude is not None:
+            raise ValueError("give --gravity or --latitude/--height, not both")
+        return gravity, "given with --gravity"
+    if latitude is not None:
+        g = normal_gravity(latitude, height or 0.0)
+        return g, f"normal gravity at latitude {latitude:g} deg, height {height or 0.0:g} m"
+    if height is not None:
+        raise ValueError("--height needs --latitude (normal gravity depends on both)")
+    return STANDARD_GRAVITY, (
+        "standard gravity 9.80665 m/s^2 (local g differs by up to 0.27 %, which lands in the "
+        "scale factors: give --latitude/--height or --gravity)"
+    )
+
+
+def run_gyro(rec: Recording, full_turns: bool, cf: CalibrationFile | None = None) -> Outcome:
+    """A still recording gives the bias; one with rotations between still poses gives the bias
+    (from the poses) and the full matrix. The file's accelerometer calibration, when there is
+    one, corrects the gravity directions first, so the gyro lands in the calibrated frame."""
+    from imud.calib.gyro import fit_gyro_bias, fit_gyro_full
+    from imud.calib.still import check_still
+
+    notes: list[str] = []
+    if cf is not None and cf.accel is not None:
+        a = cf.accel
+        corrected = (rec.accel - np.asarray(a.bias)) @ a.transform().T
+        rec = replace(rec, accel=corrected)
+        notes.append("accelerometer calibration from the file applied to the gravity directions")
+    if check_still(rec).still:
+        est = fit_gyro_bias(rec)
+    else:
+        est = fit_gyro_full(rec, None, None, full_turns)
+    report = affine_report(est)
+    report["notes"] = notes
+    return Outcome(
+        "gyro", est.verdict.accepted, list(est.verdict.reasons), report, _affine_update(est)
+    )

@@ -1,0 +1,480 @@
+"""`imud calibrate accel|gyro|temp|mag|apply`: estimate a device's calibration from a recording
+(offline, `--from FILE.csv`) or from the running daemon (`--device NAME`: its uncorrected stream),
+print the estimate with its uncertainty, residuals and verdict, and write the device's file.
+
+Exit codes: 0 accepted and written; 2 bad input (arguments, CSV, config); 3 the data did not
+support a calibration (the reason is printed; nothing is written); 1 no daemon (live).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any, Literal
+
+import click
+import numpy as np
+
+from imud.cli.common import EXIT_USAGE, _connect, _fail, _prefix
+
+EXIT_REFUSED = 3
+Units = dict[str, Any]
+
+
+def _units(f: Any) -> Any:
+    f = click.option(
+        "--accel-units",
+        type=click.Choice(["m/s2", "g"]),
+        default="m/s2",
+        show_default=True,
+        help="accel columns of --from",
+    )(f)
+    f = click.option(
+        "--gyro-units",
+        type=click.Choice(["rad/s", "dps"]),
+        default="rad/s",
+        show_default=True,
+        help="gyro columns of --from",
+    )(f)
+    return click.option(
+        "--mag-units",
+        type=click.Choice(["T", "uT"]),
+        default="T",
+        show_default=True,
+        help="mag columns of --from",
+    )(f)
+
+
+def _source(f: Any) -> Any:
+    for opt in reversed(
+        [
+            click.option(
+                "--from",
+                "from_csv",
+                type=click.Path(dir_okay=False, exists=True),
+                help="offline: a recording (docs/recording-csv.md)",
+            ),
+            click.option("--device", help="live: a device of the running daemon"),
+            click.option(
+                "--out",
+                type=click.Path(dir_okay=False),
+                help="calibration file to write or update (default: the device's "
+                "`calibration` in --config)",
+            ),
+            click.option(
+                "--config",
+                "config_path",
+                type=click.Path(dir_okay=False),
+                help="the daemon's config: where --device's calibration file is",
+            ),
+            click.option(
+                "--chip", help="the chip the file is for (offline, when the CSV does not say)"
+            ),
+            click.option(
+                "--duration",
+                type=click.FloatRange(min=1.0),
+                default=None,
+                help="live: stop capturing after this many seconds",
+            ),
+            click.option(
+                "--json",
+                "as_json",
+                is_flag=True,
+                help="print the estimate, covariance, residuals and verdict as JSON",
+            ),
+            click.option(
+                "--plot",
+                type=click.Path(dir_okay=False),
+                help="draw the fit to a PNG (needs the `plot` extra: matplotlib)",
+            ),
+            click.option("--dry-run", is_flag=True, help="estimate and print; write nothing"),
+            _connect,
+            _prefix,
+        ]
+    ):
+        f = opt(f)
+    return _units(f)
+
+
+def _gravity_opts(f: Any) -> Any:
+    f = click.option("--gravity", type=float, help="local g, m/s^2")(f)
+    f = click.option(
+        "--latitude", type=click.FloatRange(-90, 90), help="geodetic latitude, deg (normal gravity)"
+    )(f)
+    return click.option("--height", type=float, help="height above the ellipsoid, m")(f)
+
+
+@click.group()
+def calibrate() -> None:
+    """Estimate calibrations (accel, gyro, temp, mag) and apply them to recordings.
+
+    Live (--device) the procedure reads the daemon's uncorrected stream; offline (--from) a CSV
+    recording from imud or any tool (--accel-units/--gyro-units/--mag-units read other units).
+    The estimate is printed with its uncertainty and residuals and a verdict; when accepted, the
+    device's calibration file is written or updated (the daemon picks it up at once)."""
+
+
+class Job:
+    """One procedure run: where the data comes from, where the result goes."""
+
+    def __init__(self, kind: str, opts: dict[str, Any]) -> None:
+        self.kind = kind
+        self.o = opts
+        self.as_json = bool(opts["as_json"])
+        if (opts["from_csv"] is None) == (opts["device"] is None):
+            _fail(
+                "give --from FILE.csv (offline) or --device NAME (live), one of the two",
+                EXIT_USAGE,
+                self.as_json,
+            )
+        self.chip: str | None = opts.get("chip")
+        self.device_name: str | None = opts.get("device")
+        self.out: Path | None = Path(opts["out"]) if opts.get("out") else None
+        self._from_config()
+
+    def _from_config(self) -> None:
+        cp = self.o.get("config_path")
+        if cp is None:
+            return
+        from imud.cli.common import _load
+
+        cfg = _load(cp)
+        # the daemon this config runs: reach it where it listens, under its prefix
+        ctx = click.get_current_context()
+        if ctx.get_parameter_source("endpoint") == click.core.ParameterSource.DEFAULT:
+            listen = [e for e in cfg.zenoh.listen if e.startswith("tcp/")]
+            if listen:
+                self.o["endpoint"] = listen[0].replace("0.0.0.0", "127.0.0.1")
+        if ctx.get_parameter_source("prefix") == click.core.ParameterSource.DEFAULT:
+            self.o["prefix"] = cfg.zenoh.prefix
+        name = self.device_name
+        if name is None:
+            if self.out is None:
+                _fail(
+                    "--config needs --device (whose calibration file to write), or give --out",
+                    EXIT_USAGE,
+                    self.as_json,
+                )
+            return
+        dev = next((d for d in cfg.device if d.name == name), None)
+        if dev is None:
+            _fail(
+                f"{cp} has no device {name!r} (its devices: "
+                f"{', '.join(d.name for d in cfg.device)})",
+                EXIT_USAGE,
+                self.as_json,
+            )
+        self.chip = self.chip or dev.chip
+        if self.out is None:
+            if dev.calibration is None:
+                _fail(
+                    f"device {name!r} in {cp} has no `calibration` file: add one "
+                    '(e.g. calibration = "imu0.cal.toml") or give --out',
+                    EXIT_USAGE,
+                    self.as_json,
+                )
+            self.out = dev.calibration
+
+    def recording(self, live: Any = None) -> Any:
+        from imud.calib.csvio import CsvError, read_comments, read_csv
+
+        if self.o["from_csv"] is not None:
+            path = Path(self.o["from_csv"])
+            try:
+                comments = read_comments(path)
+                rec = read_csv(
+                    path, self.o["accel_units"], self.o["gyro_units"], self.o["mag_units"]
+                )
+            except CsvError as e:
+                _fail(str(e), EXIT_USAGE, self.as_json)
+            if comments.get("samples", "").startswith("corrected"):
+                _fail(
+                    f"{path} holds corrected samples (recorded without --raw): calibrate from "
+                    "uncorrected ones (`imud record DEVICE --raw`)",
+                    EXIT_USAGE,
+                    self.as_json,
+                )
+            self.chip = self.chip or comments.get("chip")
+            self.device_name = self.device_name or comments.get("device")
+            return rec
+        return live(self)
+
+    def existing(self) -> Any:
+        from imud.calib.file import CalibrationError, CalibrationFile, load_or_new
+
+        if self.out is None:
+            if self.o["dry_run"]:
+                return CalibrationFile(chip=self.chip, device=self.device_name)
+            _fail(
+                "give --out CAL.toml (or --config with --device) to say where the calibration "
+                "goes; --dry-run only prints it",
+                EXIT_USAGE,
+                self.as_json,
+            )
+        try:
+            return (
+                load_or_new(self.out, self.chip or "", self.device_name or "")
+                if self.chip
+                else _load_any(self.out, self.device_name)
+            )
+        except CalibrationError as e:
+            _fail(f"{e} (fix or move it: it would be updated)", EXIT_USAGE, self.as_json)
+
+    def finish(self, outcome: Any, gravity_note: str | None, notes: list[str], source: str) -> None:
+        from imud.calib.file import write_calibration
+
+        report = {
+            "kind": self.kind,
+            "source": source,
+            **outcome.report,
+            "accepted": outcome.accepted,
+            "reasons": outcome.reasons,
+            "notes": notes,
+        }
+        if gravity_note:
+            report["gravity_source"] = gravity_note
+        written = None
+        if outcome.accepted and not self.o["dry_run"]:
+            cf = outcome.update(self.existing(), source)
+            assert self.out is not None
+            write_calibration(self.out, cf)
+            written = str(self.out)
+        report["written"] = written
+        if self.o.get("plot"):
+            _plot(self.kind, outcome, Path(self.o["plot"]), self.as_json)
+        if self.as_json:
+            click.echo(json.dumps(report, indent=2))
+        else:
+            from imud.cli.calibrate_view import show
+
+            show(report)
+        sys.exit(0 if outcome.accepted else EXIT_REFUSED)
+
+
+def _load_any(path: Path, device: str | None) -> Any:
+    from imud.calib.file import CalibrationFile, read_calibration
+
+    if path.exists():
+        return read_calibration(path)
+    return CalibrationFile(device=device)
+
+
+def _plot(kind: str, outcome: Any, path: Path, as_json: bool) -> None:
+    try:
+        from imud.calib.plot import draw
+    except ImportError as e:
+        _fail(f"--plot needs matplotlib: pip install 'imud[plot]' ({e})", EXIT_USAGE, as_json)
+    draw(kind, outcome, path)
+
+
+def _refused(e: Exception, as_json: bool) -> None:
+    if as_json:
+        click.echo(json.dumps({"accepted": False, "reasons": [str(e)], "written": None}))
+    else:
+        click.echo(f"imud: refused: {e}", err=True)
+    sys.exit(EXIT_REFUSED)
+
+
+def _prepared(job: Job, rec: Any, compensate_first: bool = True) -> tuple[Any, list[str]]:
+    from imud.calib.procedure import compensate
+
+    if not compensate_first or job.out is None or not job.out.exists():
+        return rec, []
+    return compensate(rec, job.existing())
+
+
+def _gravity(job: Job, gravity: float | None, lat: float | None, h: float | None) -> Any:
+    from imud.calib.procedure import local_gravity
+
+    try:
+        return local_gravity(gravity, lat, h)
+    except ValueError as e:
+        _fail(str(e), EXIT_USAGE, job.as_json)
+
+
+# --- the procedures ------------------------------------------------------------------------------
+
+
+@calibrate.command()
+@_source
+@_gravity_opts
+@click.option(
+    "--model",
+    type=click.Choice(["full", "axes"]),
+    default="full",
+    show_default=True,
+    help="full: 9 parameters from >= 9 orientations; axes: the six faces (Ferraris)",
+)
+@click.option(
+    "--min-still",
+    type=click.FloatRange(min=0.5),
+    default=2.0,
+    show_default=True,
+    help="seconds a pose must be held still to count",
+)
+@click.option(
+    "--poses",
+    type=click.IntRange(min=6),
+    default=12,
+    show_default=True,
+    help="live: distinct orientations to capture before fitting",
+)
+def accel(
+    gravity: float | None,
+    latitude: float | None,
+    height: float | None,
+    model: str,
+    min_still: float,
+    poses: int,
+    **opts: Any,
+) -> None:
+    """Accelerometer bias, scale and misalignment from still poses against local gravity."""
+    from imud.calib.procedure import run_accel
+    from imud.calib.still import CalibrationRefused
+
+    job = Job("accel", opts)
+    g, note = _gravity(job, gravity, latitude, height)
+    from imud.cli.calibrate_live import capture_poses
+
+    rec = job.recording(lambda j: capture_poses(j, poses, min_still))
+    rec, notes = _prepared(job, rec)
+    try:
+        outcome = run_accel(rec, g, model, min_s=min_still)  # type: ignore[arg-type]
+    except CalibrationRefused as e:
+        _refused(e, job.as_json)
+    job.finish(outcome, note, notes, rec.source)
+
+
+@calibrate.command()
+@_source
+@click.option(
+    "--full-turns",
+    is_flag=True,
+    help="each rotation between still poses was a whole number of turns "
+    "(a turntable or Ferraris session): gives the scale about the vertical too",
+)
+def gyro(full_turns: bool, **opts: Any) -> None:
+    """Gyro bias from still data (its standard error from the data's own noise); with rotations
+    between still poses, also scale and misalignment."""
+    from imud.calib.procedure import run_gyro
+    from imud.calib.still import CalibrationRefused
+
+    job = Job("gyro", opts)
+    from imud.cli.calibrate_live import capture_for
+
+    rec = job.recording(lambda j: capture_for(j, 30.0))
+    rec, notes = _prepared(job, rec)
+    cf = job.existing() if job.out is not None and job.out.exists() else None
+    try:
+        outcome = run_gyro(rec, full_turns, cf)
+    except CalibrationRefused as e:
+        _refused(e, job.as_json)
+    job.finish(outcome, None, notes, rec.source)
+
+
+@calibrate.command()
+@_source
+@click.option(
+    "--sensor", type=click.Choice(["accel", "gyro", "both"]), default="both", show_default=True
+)
+@click.option("--max-order", type=click.IntRange(1, 3), default=3, show_default=True)
+def temp(sensor: str, max_order: int, **opts: Any) -> None:
+    """Bias against temperature (polynomial per axis, order chosen by the fit) from a still
+    recording across a temperature span."""
+    from imud.calib.procedure import run_temp
+    from imud.calib.still import CalibrationRefused
+
+    job = Job("temp", opts)
+    from imud.cli.calibrate_live import capture_for
+
+    rec = job.recording(lambda j: capture_for(j, 600.0))
+    sensors: tuple[Literal["accel", "gyro"], ...] = (
+        ("accel", "gyro") if sensor == "both" else (sensor,)  # type: ignore[assignment]
+    )
+    try:
+        outcome = run_temp(rec, sensors, max_order)
+    except CalibrationRefused as e:
+        _refused(e, job.as_json)
+    job.finish(outcome, None, [], rec.source)
+
+
+@calibrate.command()
+@_source
+@click.option(
+    "--field-ut",
+    type=click.FloatRange(min=1, max=1000),
+    help="the local field magnitude (e.g. from a geomagnetic model), microtesla",
+)
+def mag(field_ut: float | None, **opts: Any) -> None:
+    """Magnetometer hard and soft iron (full ellipsoid) from a recording rotated through many
+    directions."""
+    from imud.calib.procedure import run_mag
+    from imud.calib.still import CalibrationRefused
+
+    job = Job("mag", opts)
+    from imud.cli.calibrate_live import capture_for
+
+    rec = job.recording(lambda j: capture_for(j, 90.0, need_mag=True))
+    if rec.mag is None:
+        _fail(f"{rec.source}: no magnetometer columns (mx, my, mz)", EXIT_USAGE, job.as_json)
+    rec, notes = _prepared(job, rec)
+    try:
+        outcome = run_mag(rec, None if field_ut is None else field_ut * 1e-6)
+    except CalibrationRefused as e:
+        _refused(e, job.as_json)
+    job.finish(outcome, None, notes, rec.source)
+
+
+@calibrate.command("apply")
+@click.option("--calibration", "cal_path", required=True, type=click.Path(dir_okay=False))
+@click.option("--from", "from_csv", required=True, type=click.Path(dir_okay=False, exists=True))
+@click.option("--out", required=True, type=click.Path(dir_okay=False))
+@_units
+def apply_cmd(
+    cal_path: str, from_csv: str, out: str, accel_units: str, gyro_units: str, mag_units: str
+) -> None:
+    """Apply a calibration file to an uncorrected recording with exactly the daemon's code
+    (imud.pipeline.correct), writing the corrected recording."""
+    from imud.calib.csvio import CsvError, CsvWriter, read_comments, read_csv
+    from imud.calib.file import CalibrationError, load_calibration
+    from imud.channels import Channel, SampleFlag
+    from imud.pipeline import correct
+
+    try:
+        cal = load_calibration(Path(cal_path))
+        rec = read_csv(Path(from_csv), accel_units, gyro_units, mag_units)  # type: ignore[arg-type]
+    except (CalibrationError, CsvError) as e:
+        _fail(str(e), EXIT_USAGE)
+    si = {Channel.ACCEL: rec.accel, Channel.GYRO: rec.gyro}
+    if rec.temp is not None:
+        si[Channel.TEMPERATURE] = rec.temp
+    if rec.mag is not None:
+        si[Channel.MAG] = rec.mag
+    period_s = 1.0 / rec.rate_hz
+    chans, clamped, _ = correct(cal, si, rec.n, None, period_s)
+    flags = np.zeros(rec.n, dtype=np.uint32)
+    if clamped is not None:
+        flags[clamped] |= np.uint32(SampleFlag.TEMPERATURE_OUTSIDE_CALIBRATION)
+    comments = {**read_comments(Path(from_csv)), "samples": f"corrected with {cal_path}"}
+    comments.pop("format", None)
+    with CsvWriter(
+        Path(out),
+        has_temp=rec.temp is not None,
+        has_mag=rec.mag is not None,
+        has_flags=True,
+        comments=comments,
+    ) as w:
+        w.write(
+            rec.t_ns,
+            chans[Channel.ACCEL],
+            chans[Channel.GYRO],
+            rec.temp,
+            chans.get(Channel.MAG),
+            flags,
+        )
+    n_out = int(np.count_nonzero(flags))
+    click.echo(
+        f"{out}: {rec.n} samples corrected"
+        + (f"; {n_out} outside the calibration's temperature span (flagged)" if n_out else "")
+    )

@@ -1,0 +1,97 @@
+"""How `imud calibrate` prints an estimate: parameters with their 1-sigma uncertainty in units a
+person reads (mg and ppm for the accelerometer, deg/h for the gyro, microtesla for the
+magnetometer), residuals, the verdict with its reasons, and the seed method beside it."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+G0 = 9.80665
+# (unit name, factor from SI) for the bias of each sensor
+_BIAS_UNIT = {
+    "accel": ("mg", 1e3 / G0),
+    "gyro": ("deg/h", 180 / math.pi * 3600),
+    "mag": ("uT", 1e6),
+}
+
+
+def _fmt(v: float, digits: int = 4) -> str:
+    return f"{v:.{digits}g}"
+
+
+def _params(report: dict[str, Any], sensor: str) -> Table:
+    unit, k = _BIAS_UNIT.get(sensor, ("", 1.0))
+    t = Table(title="parameters (1 sigma)", title_justify="left", box=None, pad_edge=False)
+    for col in ("name", "value", "sigma", ""):
+        t.add_column(col, justify="right" if col in ("value", "sigma") else "left")
+    for name, p in report.get("parameters", {}).items():
+        v, s = p["value"], p["sigma"]
+        if name.startswith("b_"):
+            extra = f"{v * k:+.4g} +- {s * k:.2g} {unit}"
+        elif name.startswith("C_") or name.startswith("c"):
+            extra = f"+- {s * 1e6:.3g} ppm" if name.startswith("C_") else ""
+        else:
+            extra = ""
+        t.add_row(name, _fmt(v, 7), _fmt(s, 2), extra)
+    return t
+
+
+def show(report: dict[str, Any], console: Console | None = None) -> None:
+    con = console or Console(highlight=False)
+    kind = report.get("kind", "")
+    con.print(f"[bold]imud calibrate {kind}[/bold] from {report.get('source', '?')}")
+    for note in report.get("notes", []):
+        con.print(f"  note: {note}")
+    if report.get("gravity_source"):
+        g = report.get("gravity")
+        con.print(f"  gravity: {g if g is not None else ''} ({report['gravity_source']})")
+    blocks = list(report["sensors"].values()) if "sensors" in report else [report]
+    for r in blocks:
+        sensor = r.get("sensor", kind)
+        con.print(f"\n[bold]{sensor}[/bold] - {r.get('procedure', '')}")
+        if "orientations" in r:
+            con.print(f"  distinct orientations: {r['orientations']}")
+        if "coverage" in r:
+            c = r["coverage"]
+            con.print(f"  direction coverage: {c['fraction']:.0%} (needs {c['required']:.0%})")
+        if "order" in r:
+            con.print(
+                f"  polynomial order {r['order']} about {r['reference_c']:g} degC, "
+                f"span {r['span_c'][0]:g}..{r['span_c'][1]:g} degC"
+            )
+        con.print(_params(r, sensor))
+        res = r.get("residuals", {})
+        if res:
+            con.print("  residuals: " + ", ".join(f"{k} {_fmt(v)}" for k, v in res.items()))
+        seed = r.get("seed_up_down")
+        if seed:
+            unit, k = _BIAS_UNIT["accel"]
+            b = ", ".join(f"{x * k:+.3g}" for x in seed["bias"])
+            s = ", ".join(f"{x:.5f}" for x in seed["scale"])
+            con.print(f"  seed up/down (per axis, for comparison): bias [{b}] {unit}, scale [{s}]")
+        mm = r.get("seed_min_max")
+        if mm:
+            b = ", ".join(f"{x * 1e6:+.3g}" for x in mm["bias"])
+            con.print(f"  seed min/max (for comparison): hard iron [{b}] uT")
+        for p in r.get("poses", [])[:40]:
+            if isinstance(p, dict) and "residual" in p:
+                con.print(
+                    f"    pose {p.get('name', '')}: residual {p['residual']:+.3g} "
+                    f"(sigma {p.get('sigma', float('nan')):.2g})"
+                )
+    ok = report.get("accepted")
+    con.print(
+        "\n[bold]verdict:[/bold] " + ("[green]accepted[/green]" if ok else "[red]refused[/red]")
+    )
+    for why in report.get("reasons", []):
+        con.print(f"  - {why}")
+    if report.get("written"):
+        con.print(f"written: {report['written']}")
+    elif ok:
+        con.print("not written (--dry-run)")
+    else:
+        con.print("nothing written")
