@@ -9,6 +9,7 @@ import numpy.typing as npt
 import pytest
 
 from imud.calib.accel import fit_accel
+from imud.calib.estimate import AffineEstimate
 from imud.calib.gyro import (
     EARTH_RATE_RAD_S,
     cumulative_product,
@@ -19,6 +20,7 @@ from imud.calib.recording import Recording
 from imud.calib.still import CalibrationRefused, find_still
 from tests.test_calib_still import (
     TWELVE,
+    Session,
     X,
     Y,
     Z,
@@ -83,18 +85,37 @@ def test_cumulative_product_is_the_running_product() -> None:
     assert np.max(np.abs(cumulative_product(e) - expect)) < 1e-12
 
 
-def gyro_session(seed: int, moves: list[tuple[tuple[float, float, float], float]], **kw: object):  # type: ignore[no-untyped-def]
-    return session(moves, seed=seed, gyro_a=A_G, gyro_b=B_G, gyro_n=N, **kw)  # type: ignore[arg-type]
+def gyro_session(
+    seed: int,
+    moves: list[tuple[tuple[float, float, float], float]],
+    fs: float,
+    still_s: float = 5.0,
+    move_s: float = 2.0,
+    accel_a: F64 | None = None,
+) -> Session:
+    return session(
+        moves,
+        seed=seed,
+        fs=fs,
+        still_s=still_s,
+        move_s=move_s,
+        accel_a=accel_a,
+        gyro_a=A_G,
+        gyro_b=B_G,
+        gyro_n=N,
+    )
 
 
-def full_fit(rec: Recording, **kw: object):  # type: ignore[no-untyped-def]
+def full_fit(
+    rec: Recording, full_turns: bool = False, accel: AffineEstimate | None = None
+) -> AffineEstimate:
     found = find_still(rec)
     bias = fit_gyro_bias(rec.slice(found[0].start, found[0].end))
-    return fit_gyro_full(rec, found, bias, **kw)  # type: ignore[arg-type]
+    return fit_gyro_full(rec, found, bias, full_turns=full_turns, accel=accel)
 
 
 def test_full_matrix_recovered_within_its_sigma() -> None:
-    z = []
+    z: list[float] = []
     for trial in range(5):
         est = full_fit(gyro_session(10 + trial, MOVES, fs=200.0).rec)
         assert est.procedure == "gyro-full" and est.verdict.accepted, est.verdict.reasons

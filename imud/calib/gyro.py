@@ -185,14 +185,27 @@ def _exp_and_jr(phi: F64) -> tuple[F64, F64]:
     th = np.sqrt(th2)
     small = th < 1e-4
     safe = np.where(small, 1.0, th)
-    a = np.where(small, 1.0 - th2 / 6.0, np.sin(safe) / safe)  # sin t / t
-    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(safe)) / safe**2)  # (1 - cos t) / t^2
-    c = np.where(small, 1.0 / 6.0 - th2 / 120.0, (safe - np.sin(safe)) / safe**3)
+    sn = np.sin(safe)
+    half = np.sin(0.5 * safe)
+    a = sn / safe  # sin t / t
+    b = 2.0 * half * half / (safe * safe)  # (1 - cos t) / t^2, without cancellation
+    c = (safe - sn) / (safe * safe * safe)  # (t - sin t) / t^3
+    if np.any(small):
+        t2 = th2[small]
+        a[small] = 1.0 - t2 / 6.0
+        b[small] = 0.5 - t2 / 24.0
+        c[small] = 1.0 / 6.0 - t2 / 120.0
     k = _skew(phi)
-    k2 = phi[:, :, None] * phi[:, None, :] - th2[:, None, None] * np.eye(3)  # [phi]x^2
-    eye = np.eye(3)
-    e = eye + a[:, None, None] * k + b[:, None, None] * k2
-    jr = eye - b[:, None, None] * k + c[:, None, None] * k2
+    k2 = phi[:, :, None] * phi[:, None, :]  # [phi]x^2 = phi phi^T - |phi|^2 I
+    diag = np.arange(3)
+    k2[:, diag, diag] -= th2[:, None]
+    a3, b3, c3 = a[:, None, None], b[:, None, None], c[:, None, None]
+    e = b3 * k2
+    e += a3 * k
+    e[:, diag, diag] += 1.0
+    jr = c3 * k2
+    jr -= b3 * k
+    jr[:, diag, diag] += 1.0
     return e, jr
 
 
@@ -278,20 +291,26 @@ def _integrate(c: F64, w: F64, dt: F64, starts: F64) -> _Integrated:
     pre = cumulative_product(e)
     idx = np.asarray(starts[:-1], dtype=np.intp)
     ends = np.asarray(starts[1:], dtype=np.intp) - 1
-    seg = np.repeat(np.arange(idx.shape[0]), np.diff(starts).astype(np.intp))
-    base = np.where(idx[:, None, None] > 0, pre[np.maximum(idx - 1, 0)], np.eye(3))
-    local = np.swapaxes(base, 1, 2)[seg] @ pre  # product from the motion's start to i
-    rot = local[ends]
-    k = np.swapaxes(rot, 1, 2)[seg] @ local @ jr  # X_i^T J_r(phi_i)
+    # P_i running product over all motions; within motion s (first sample f) the product from
+    # its start to i is B_s^T P_i, B_s = P_(f-1); the rotation over the motion R_s = B_s^T P_end
+    # and X_i^T = R_s^T B_s^T P_i, so K_i = X_i^T J_r(phi_i) = M_s (P_i J_r(phi_i)) with
+    # M_s = R_s^T B_s^T constant over the motion: one batched product, then per-motion sums
+    base_t = np.swapaxes(
+        np.where(idx[:, None, None] > 0, pre[np.maximum(idx - 1, 0)], np.eye(3)), 1, 2
+    )
+    rot = base_t @ pre[ends]
+    m = np.swapaxes(rot, 1, 2) @ base_t
+    lj = pre @ jr
     wdt = w * dt[:, None]
-    # G[x, a, b] = sum_i K_i[x, a] (w_i dt_i)[b]: one small matrix product per motion
-    g = np.array(
+    # G[x, a, b] = sum_i K_i[x, a] (w_i dt_i)[b] = M_s sum_i (P J)_i[:, a] (w dt)_i[b]
+    sums = np.array(
         [
-            (k[a:z].reshape(-1, 9).T @ wdt[a:z]).reshape(3, 9)
+            (lj[a:z].reshape(-1, 9).T @ wdt[a:z]).reshape(3, 9)
             for a, z in zip(idx, ends + 1, strict=True)
         ]
     )
-    h = np.add.reduceat(k * dt[:, None, None], idx, axis=0)
+    g = m @ sums
+    h = m @ np.add.reduceat(lj * dt[:, None, None], idx, axis=0)
     angle = np.linalg.norm(np.add.reduceat(phi, idx, axis=0), axis=1)
     return _Integrated(rot, g, h, angle)
 

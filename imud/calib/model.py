@@ -38,7 +38,7 @@ class TempPoly:
         """p(T) per sample (N, 3), with T clamped to the span; and where T was outside it
         (or unknown: NaN, which leaves the term out)."""
         lo, hi = self.span_c
-        unknown = np.isnan(temp_c)  # no valid temperature yet: no term, and flagged
+        unknown = ~np.isfinite(temp_c)  # no valid temperature yet: no term, and flagged
         outside = (temp_c < lo) | (temp_c > hi) | unknown
         x = np.where(unknown, 0.0, np.clip(temp_c, lo, hi) - self.reference_c)
         acc = np.zeros((x.shape[0], 3))

@@ -1,18 +1,19 @@
 """Still intervals in a recording, found with no user tuning, and the noise of their means.
 
-Detection. A sliding window of ~0.5 s (long enough that the variance of a window of noise is
-well determined, short enough to resolve a pose change) gives, for every window position, the
-variance of the accelerometer vector and of the gyro vector (sums over axes, from cumulative
-sums: O(N), no per-sample loop). Motion raises both by orders of magnitude over the sensor's
+Detection. A window of ~0.5 s (long enough that the variance of a window of noise is well
+determined, short enough to resolve a pose change), sliding in steps of a tenth of its length,
+gives the variance of the accelerometer vector and of the gyro vector (sums over axes, from
+per-step sums and their running totals: O(N), no per-sample loop; an hour at 1 kHz takes a few
+tenths of a second). Motion raises both by orders of magnitude over the sensor's
 noise. The noise floor is read from the data itself: the logarithm of a still window's variance is
 close to normal (a scaled chi-squared), so its centre and spread follow from two low quantiles
 (2 % and 10 %) of all windows, which lie in still data whenever at least ~10 % of the recording
 is still. A window enters "still" below centre + 3 spreads and leaves it only above
 centre + 6 spreads (hysteresis: noise alone crosses neither). The spread is floored at 0.15 in
 log (+-15 %) so a nearly white sensor with a very tight distribution is not cut by its own
-slow temperature or vibration wander. A sample is still when its window is still for both
-sensors; runs are trimmed by one window at each end (the onset and settling of motion lie below
-the thresholds) and kept when they last at least `min_s` (2 s by default).
+slow temperature or vibration wander. A window is still when it is still for both sensors;
+runs of still windows are trimmed by one window at each end (the onset and settling of motion
+lie below the thresholds) and kept when they last at least `min_s` (2 s by default).
 
 Noise of a mean. MEMS outputs are low-pass filtered and drift, so consecutive samples are
 correlated and sigma/sqrt(n) underestimates the error of a mean. Block averaging (Flyvbjerg &

@@ -56,6 +56,7 @@ import numpy.typing as npt
 
 from imud.calib.estimate import F64, Fit, TempEstimate, Verdict
 from imud.calib.mag import chi2_scale, difference_noise, p_value
+from imud.calib.model import TempPoly
 from imud.calib.recording import Recording
 from imud.calib.stats import chi2_sf
 from imud.calib.still import CalibrationRefused
@@ -82,21 +83,11 @@ def temp_correction(
     coefficients: F64, reference_c: float, span_c: tuple[float, float], temp: F64
 ) -> tuple[F64, npt.NDArray[np.bool_]]:
     """The bias change to subtract at each temperature, (N, 3), and a mask of the samples
-    whose temperature lay outside span_c.
-
-    Outside the span, T is clamped to the nearer edge: a polynomial extrapolated beyond the
-    data it was fitted to diverges, most of all a cubic. The mask lets the pipeline flag those
-    samples instead of hiding the clamp. A non-finite temperature gets the correction at the
-    reference (zero) and is flagged too. Horner's scheme, vectorised over samples."""
-    t = np.asarray(temp, dtype=np.float64).reshape(-1)
-    lo, hi = span_c
-    finite = np.isfinite(t)
-    outside: npt.NDArray[np.bool_] = ~finite | (t < lo) | (t > hi)
-    dt = np.where(finite, np.clip(t, lo, hi), reference_c) - reference_c
-    acc = np.zeros((t.shape[0], 3))
-    for c in np.asarray(coefficients, dtype=np.float64)[::-1]:
-        acc = (acc + c) * dt[:, None]
-    return acc, outside
+    whose temperature lay outside span_c (clamped to the nearer edge there; a non-finite
+    temperature gets no correction and is flagged). The pipeline's own code
+    (imud/calib/model.py `TempPoly.offset`), so a fit is checked with what will apply it."""
+    poly = TempPoly(reference_c, np.asarray(coefficients, dtype=np.float64), span_c)
+    return poly.offset(np.asarray(temp, dtype=np.float64).reshape(-1))
 
 
 def _blocks(rec: Recording) -> tuple[int, int]:
