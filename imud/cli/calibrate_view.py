@@ -77,12 +77,15 @@ def show(report: dict[str, Any], console: Console | None = None) -> None:
         if mm:
             b = ", ".join(f"{x * 1e6:+.3g}" for x in mm["bias"])
             con.print(f"  seed min/max (for comparison): hard iron [{b}] uT")
-        for p in r.get("poses", [])[:40]:
-            if isinstance(p, dict) and "residual" in p:
-                con.print(
-                    f"    pose {p.get('name', '')}: residual {p['residual']:+.3g} "
-                    f"(sigma {p.get('sigma', float('nan')):.2g})"
-                )
+        poses = [p for p in r.get("poses", []) if isinstance(p, dict) and "residual" in p]
+        if poses:
+            con.print("  per pose: start s, held s, residual |C(m-b)| - g (its sigma), mm/s^2")
+        for k, p in enumerate(poses[:40]):
+            t0, dur = p.get("t0_s", float("nan")), p.get("duration_s", float("nan"))
+            con.print(
+                f"    {k + 1:2d} at {t0:7.1f} for {dur:5.1f}: {p['residual'] * 1e3:+7.2f} "
+                f"({p.get('sigma', float('nan')) * 1e3:.2f})"
+            )
     ok = report.get("accepted")
     con.print(
         "\n[bold]verdict:[/bold] " + ("[green]accepted[/green]" if ok else "[red]refused[/red]")
