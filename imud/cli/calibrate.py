@@ -143,9 +143,11 @@ class Job:
         # the daemon this config runs: reach it where it listens, under its prefix
         ctx = click.get_current_context()
         if ctx.get_parameter_source("endpoint") == click.core.ParameterSource.DEFAULT:
-            listen = [e for e in cfg.zenoh.listen if e.startswith("tcp/")]
+            # a loopback listener is this machine's daemon; one on another address is left to
+            # --connect (an unspecified address says nothing about where to connect)
+            listen = [e for e in cfg.zenoh.listen if e.startswith("tcp/127.")]
             if listen:
-                self.o["endpoint"] = listen[0].replace("0.0.0.0", "127.0.0.1")
+                self.o["endpoint"] = listen[0]
         if ctx.get_parameter_source("prefix") == click.core.ParameterSource.DEFAULT:
             self.o["prefix"] = cfg.zenoh.prefix
         name = self.device_name
