@@ -175,7 +175,8 @@ def read_calibration(path: Path) -> CalibrationFile:
     return parse_calibration(raw, f"calibration file {path}")
 
 
-def _sensor_model(t: SensorTable) -> SensorModel:
+def sensor_model(t: SensorTable) -> SensorModel:
+    """What the pipeline applies for one sensor's table."""
     temp = None
     if t.temperature is not None:
         tt = t.temperature
@@ -187,7 +188,7 @@ def _sensor_model(t: SensorTable) -> SensorModel:
 def to_model(cf: CalibrationFile, path: Path) -> CalibrationModel:
     return CalibrationModel(
         path,
-        *(None if (t := cf.sensor(s)) is None else _sensor_model(t) for s in _SENSOR_CHANNEL),
+        *(None if (t := cf.sensor(s)) is None else sensor_model(t) for s in _SENSOR_CHANNEL),
     )
 
 
@@ -299,15 +300,18 @@ def write_calibration(path: Path, cf: CalibrationFile) -> None:
     write_atomic(path, text)
 
 
-def load_or_new(path: Path, chip: str, device: str) -> CalibrationFile:
-    """The file a procedure updates: the existing one (its other sensors are kept), or a new one."""
+def load_or_new(path: Path, chip: str | None, device: str | None) -> CalibrationFile:
+    """The file a procedure updates: the existing one (its other sensors are kept), or a new one.
+    `chip`/`device` None: not known (an offline recording that does not say); the file's own
+    are kept."""
     if path.exists():
         cf = read_calibration(path)
-        if cf.chip is not None and cf.chip != chip:
+        if chip is not None and cf.chip is not None and cf.chip != chip:
             raise CalibrationError(
                 f"{path} holds a calibration for a {cf.chip}, not a {chip}: give another --out"
             )
-        return cf.model_copy(update={"chip": chip, "device": device, "version": VERSION})
+        update = {"chip": chip or cf.chip, "device": device or cf.device, "version": VERSION}
+        return cf.model_copy(update=update)
     return CalibrationFile(chip=chip, device=device)
 
 

@@ -17,8 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from imud.calib.estimate import AffineEstimate, Fit, TempEstimate
-from imud.calib.file import CalibrationFile, with_affine, with_temperature
-from imud.calib.model import TempPoly
+from imud.calib.file import CalibrationFile, sensor_model, with_affine, with_temperature
 from imud.calib.recording import Recording
 
 F64 = npt.NDArray[np.float64]
@@ -50,17 +49,12 @@ def compensate(rec: Recording, cf: CalibrationFile | None) -> tuple[Recording, l
     for name in ("accel", "gyro", "mag"):
         table = cf.sensor(name)
         values = arrays[name]
-        if table is None or table.temperature is None or values is None:
+        poly = None if table is None else sensor_model(table).temp
+        if poly is None or values is None:
             continue
-        t = table.temperature
-        poly = TempPoly(
-            t.reference_c,
-            np.asarray(t.coefficients, dtype=np.float64),
-            (float(t.span_c[0]), float(t.span_c[1])),
-        )
         offset, outside = poly.offset(rec.temp)
         arrays[name] = values - offset
-        note = f"{name}: the file's temperature polynomial (reference {t.reference_c:g} degC)"
+        note = f"{name}: the file's temperature polynomial (reference {poly.reference_c:g} degC)"
         note += " applied first"
         if outside.any():
             note += f"; {int(outside.sum())} samples were outside its span and clamped"
@@ -225,9 +219,9 @@ def run_gyro(rec: Recording, full_turns: bool, cf: CalibrationFile | None = None
 
     notes: list[str] = []
     if cf is not None and cf.accel is not None:
-        a = cf.accel
-        corrected = (rec.accel - np.asarray(a.bias)) @ a.transform().T
-        rec = replace(rec, accel=corrected)
+        # bias and matrix only: its temperature term, if any, was applied by `compensate`
+        a = sensor_model(cf.accel)
+        rec = replace(rec, accel=(rec.accel - a.bias) @ a.matrix.T)
         notes.append("accelerometer calibration from the file applied to the gravity directions")
     if check_still(rec).still:
         est = fit_gyro_bias(rec)

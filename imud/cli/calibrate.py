@@ -11,12 +11,15 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import click
 import numpy as np
 
 from imud.cli.common import EXIT_USAGE, _connect, _fail, _prefix
+
+if TYPE_CHECKING:
+    from imud.calib.file import CalibrationFile
 
 EXIT_REFUSED = 3
 Units = dict[str, Any]
@@ -202,7 +205,16 @@ class Job:
             return rec
         return live(self)
 
-    def existing(self) -> Any:
+    def existing(self) -> CalibrationFile:
+        """The calibration file this run updates, read once (procedures consult it before
+        fitting, and `finish` updates it)."""
+        if self._existing is None:
+            self._existing = self._read_existing()
+        return self._existing
+
+    _existing: CalibrationFile | None = None
+
+    def _read_existing(self) -> CalibrationFile:
         from imud.calib.file import CalibrationError, CalibrationFile, load_or_new
 
         if self.out is None:
@@ -215,11 +227,7 @@ class Job:
                 self.as_json,
             )
         try:
-            return (
-                load_or_new(self.out, self.chip or "", self.device_name or "")
-                if self.chip
-                else _load_any(self.out, self.device_name)
-            )
+            return load_or_new(self.out, self.chip, self.device_name)
         except CalibrationError as e:
             _fail(f"{e} (fix or move it: it would be updated)", EXIT_USAGE, self.as_json)
 
@@ -254,14 +262,6 @@ class Job:
         sys.exit(0 if outcome.accepted else EXIT_REFUSED)
 
 
-def _load_any(path: Path, device: str | None) -> Any:
-    from imud.calib.file import CalibrationFile, read_calibration
-
-    if path.exists():
-        return read_calibration(path)
-    return CalibrationFile(device=device)
-
-
 def _plot(kind: str, outcome: Any, path: Path, as_json: bool) -> None:
     try:
         from imud.calib.plot import draw
@@ -278,12 +278,11 @@ def _refused(e: Exception, as_json: bool) -> None:
     sys.exit(EXIT_REFUSED)
 
 
-def _prepared(job: Job, rec: Any, compensate_first: bool = True) -> tuple[Any, list[str]]:
+def _prepared(job: Job, rec: Any) -> tuple[Any, list[str]]:
+    """The recording with the device file's temperature polynomials applied (notes say so)."""
     from imud.calib.procedure import compensate
 
-    if not compensate_first or job.out is None or not job.out.exists():
-        return rec, []
-    return compensate(rec, job.existing())
+    return (rec, []) if job.out is None else compensate(rec, job.existing())
 
 
 def _gravity(job: Job, gravity: float | None, lat: float | None, h: float | None) -> Any:
@@ -367,7 +366,7 @@ def gyro(full_turns: bool, **opts: Any) -> None:
 
     rec = job.recording(lambda j: capture_for(j, 30.0))
     rec, notes = _prepared(job, rec)
-    cf = job.existing() if job.out is not None and job.out.exists() else None
+    cf = job.existing() if job.out is not None else None
     try:
         outcome = run_gyro(rec, full_turns, cf)
     except CalibrationRefused as e:

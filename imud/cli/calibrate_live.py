@@ -36,7 +36,8 @@ class Buffer:
     def add(self, b: Any) -> None:
         if b.accel is None or b.gyro is None:
             return
-        self.lost += int(b.lost_before)
+        if self.parts:  # a first batch's count is from before this capture subscribed
+            self.lost += int(b.lost_before)
         ok = (b.sample_flags & np.uint32(INVALID_MASK)) == 0
         self.dropped_invalid += int(np.count_nonzero(~ok))
         if not ok.any():
@@ -57,6 +58,18 @@ class Buffer:
     @property
     def n(self) -> int:
         return sum(len(p["t"]) for p in self.parts)
+
+    def summary(self) -> str:
+        """What the capture could not use, for the person running it ('' when nothing)."""
+        parts = [
+            f"{n} {what}"
+            for n, what in (
+                (self.lost, "samples lost on the way"),
+                (self.dropped_invalid, "samples the chip marked invalid, left out"),
+            )
+            if n
+        ]
+        return "; ".join(parts)
 
     def recording(self) -> Recording:
         ps = self.parts
@@ -160,6 +173,8 @@ def capture_poses(job: Any, target: int, min_s: float) -> Recording:
         from imud.cli.common import EXIT_NO_DAEMON, _fail
 
         _fail(f"no samples arrived from {job.device_name}", EXIT_NO_DAEMON, job.as_json)
+    if buf.summary():
+        con.print(f"{job.device_name}: {buf.summary()}")
     return buf.recording()
 
 
@@ -194,6 +209,8 @@ def capture_for(job: Any, default_s: float, need_mag: bool = False) -> Recording
         from imud.cli.common import EXIT_NO_DAEMON, _fail
 
         _fail(f"no samples arrived from {job.device_name}", EXIT_NO_DAEMON, job.as_json)
+    if buf.summary():
+        con.print(f"{job.device_name}: {buf.summary()}")
     return buf.recording()
 
 
