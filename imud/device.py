@@ -67,6 +67,7 @@ class DeviceRunner:
         self.calibration_outside_span = 0  # samples whose temperature correction was clamped
         self.publish = publish
         self.publish_raw: Publish | None = None  # the uncorrected stream, while subscribed
+        self._want_raw = False
         self.publish_truth = publish_truth
         self.sim = sim
         self.epoch_offset_ns = epoch_offset_ns
@@ -112,8 +113,6 @@ class DeviceRunner:
         self._want_raw = on
         if self.pipeline is not None:
             self.pipeline.want_raw = on
-
-    _want_raw = False
 
     def resume(self, next_seq: int, last_t_ns: int) -> None:
         """Continue a stream this device published before (from a bus process that died):
