@@ -71,6 +71,10 @@ def test_accel_calibration_completes_live_and_is_applied(daemon: DaemonProc) -> 
         "--duration",
         "120",
         "--json",
+        # the residual test refuses a right calibration 1 % of the time by design (the
+        # estimator tests check that rate); this test is about the live procedure completing
+        "--significance",
+        "1e-6",
         timeout=180,
     )
     assert r.returncode == 0, r.stdout + r.stderr

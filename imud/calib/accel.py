@@ -181,6 +181,7 @@ def fit_accel(
     model: Model = "full",
     intervals: list[StillInterval] | None = None,
     min_s: float = 2.0,
+    significance: float = 0.01,
 ) -> AccelResult:
     """Calibrate the accelerometer from the still poses of a recording (see module docstring).
 
@@ -216,7 +217,7 @@ def fit_accel(
             f"(still {still_s:.1f} s of {rec.n / rec.rate_hz:.1f} s in total): the sensor moved "
             "throughout; hold each pose still for a few seconds"
         )
-    return fit_accel_intervals(intervals, gravity, model, dropped)
+    return fit_accel_intervals(intervals, gravity, model, dropped, significance)
 
 
 def fit_accel_intervals(
@@ -224,6 +225,7 @@ def fit_accel_intervals(
     gravity: float,
     model: Model = "full",
     dropped: list[str] | None = None,
+    significance: float = 0.01,
 ) -> AccelResult:
     """The fit itself, from pose means alone (fit_accel adds detection and motion checks)."""
     _check_gravity(gravity)
@@ -270,7 +272,7 @@ def fit_accel_intervals(
         raise ValueError(f"unknown accel model {model!r}: use 'full' or 'axes'")
     for p, lab in zip(poses, labels, strict=True):
         p["orientation"] = lab
-    reasons, ok = _verdict(used, poses, est, model)
+    reasons, ok = _verdict(used, poses, est, model, significance)
     details: dict[str, Any] = {
         **est.details,
         "poses": poses,
@@ -479,8 +481,14 @@ def _fit_axes(used: list[StillInterval], g: float) -> tuple[_Solved, list[dict[s
 
 
 def _verdict(
-    used: list[StillInterval], poses: list[dict[str, Any]], est: _Solved, model: Model
+    used: list[StillInterval],
+    poses: list[dict[str, Any]],
+    est: _Solved,
+    model: Model,
+    significance: float = 0.01,
 ) -> tuple[list[str], bool]:
+    """significance: the chance of refusing a right model with right noise (the chi-squared
+    test's p threshold); 0.01 by default."""
     reasons: list[str] = []
     ok = True
     res = est.residuals
@@ -489,7 +497,7 @@ def _verdict(
             f"{len(used)} poses for {len(est.names)} parameters: the fit is exact and its "
             "residuals cannot be tested; add a few more poses to check it"
         )
-    elif res["p_value"] < 0.01:
+    elif res["p_value"] < significance:
         ok = False
         if model == "axes":
             worst = max(range(len(poses)), key=lambda k: poses[k]["off_face_deg"])

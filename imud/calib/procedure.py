@@ -123,12 +123,16 @@ def _affine_update(est: AffineEstimate) -> Callable[[CalibrationFile, str], Cali
 
 
 def run_accel(
-    rec: Recording, gravity: float, model: Literal["full", "axes"], min_s: float = 2.0
+    rec: Recording,
+    gravity: float,
+    model: Literal["full", "axes"],
+    min_s: float = 2.0,
+    significance: float = 0.01,
 ) -> Outcome:
     """Raises CalibrationRefused when no estimate can be formed at all."""
     from imud.calib.accel import fit_accel
 
-    res = fit_accel(rec, gravity, model, min_s=min_s)
+    res = fit_accel(rec, gravity, model, min_s=min_s, significance=significance)
     est = res.estimate
     report = affine_report(est)
     report["orientations"] = res.orientations

@@ -321,6 +321,13 @@ def _gravity(job: Job, gravity: float | None, lat: float | None, h: float | None
     show_default=True,
     help="live: distinct orientations to capture before fitting",
 )
+@click.option(
+    "--significance",
+    type=click.FloatRange(min=1e-12, max=0.5),
+    default=0.01,
+    show_default=True,
+    help="chance of refusing a right calibration by chance (the residual test's p threshold)",
+)
 def accel(
     gravity: float | None,
     latitude: float | None,
@@ -328,6 +335,7 @@ def accel(
     model: str,
     min_still: float,
     poses: int,
+    significance: float,
     **opts: Any,
 ) -> None:
     """Accelerometer bias, scale and misalignment from still poses against local gravity."""
@@ -338,10 +346,20 @@ def accel(
     g, note = _gravity(job, gravity, latitude, height)
     from imud.cli.calibrate_live import capture_poses
 
-    rec = job.recording(lambda j: capture_poses(j, poses, min_still))
+    def missing(ivs: list[Any]) -> str | None:
+        """Why these poses cannot give the fit yet (None: they can)."""
+        from imud.calib.accel import fit_accel_intervals
+
+        try:
+            fit_accel_intervals(ivs, g, model)  # type: ignore[arg-type]
+        except CalibrationRefused as e:
+            return str(e)
+        return None
+
+    rec = job.recording(lambda j: capture_poses(j, poses, min_still, missing))
     rec, notes = _prepared(job, rec)
     try:
-        outcome = run_accel(rec, g, model, min_s=min_still)  # type: ignore[arg-type]
+        outcome = run_accel(rec, g, model, min_s=min_still, significance=significance)  # type: ignore[arg-type]
     except CalibrationRefused as e:
         _refused(e, job.as_json)
     job.finish(outcome, note, notes, rec.source)

@@ -9,12 +9,14 @@ once a second, so live and offline agree on what counts as a pose.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from imud.calib.recording import Recording
+from imud.calib.still import StillInterval
 from imud.channels import INVALID_MASK, SATURATED, Channel
 from imud.status import DeviceState
 
@@ -127,8 +129,11 @@ def _console(job: Any) -> Any:
     return Console(stderr=True, highlight=False, quiet=job.as_json)
 
 
-def capture_poses(job: Any, target: int, min_s: float) -> Recording:
-    """Capture until `target` distinct still orientations are held (or --duration passes)."""
+def capture_poses(
+    job: Any, target: int, min_s: float, missing: Callable[[list[StillInterval]], str | None]
+) -> Recording:
+    """Capture until `target` distinct still orientations are held and `missing(poses)` has
+    nothing more to ask for (the fit can be formed from them), or --duration passes."""
     from rich.live import Live
     from rich.text import Text
 
@@ -163,10 +168,15 @@ def capture_poses(job: Any, target: int, min_s: float) -> Recording:
                 f"[{bar}] {distinct}/{target} orientations held still >= {min_s:g} s, "
                 f"{now - start:.0f} s; now: {'moving' if moving else 'still'}"
             )
+            why = None
             if distinct < target:
                 text.append("\n  next: " + "; ".join(suggest_poses(dirs, 3)))
+            else:  # enough orientations; enough for the fit?
+                why = missing(ivs)
+                if why:
+                    text.append(f"\n  still needed: {why}")
             live.update(text)
-            if distinct >= target or now - start > limit:
+            if (distinct >= target and why is None) or now - start > limit:
                 break
         it.close()
     if buf.n < 2:
