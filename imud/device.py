@@ -20,6 +20,7 @@ import numpy.typing as npt
 from imud.backoff import Backoff
 from imud.buses.models import describe
 from imud.calib.model import CalibrationModel
+from imud.calib.track import GyroBiasTracker
 from imud.channels import INVALID_MASK, Channel
 from imud.chips.api import DeviceBase, Driver, SimChip
 from imud.errors import BusError, DeviceIdentityError, RegisterMismatch
@@ -107,6 +108,8 @@ class DeviceRunner:
         self.calibration, self.calibration_error = model, error
         if self.pipeline is not None:
             self.pipeline.cal = model
+            if self.pipeline.tracker is not None:
+                self.pipeline.tracker.reset()
 
     def want_raw(self, on: bool) -> None:
         """Someone subscribes to (or left) `<prefix>/<device>/raw`: compute it only then."""
@@ -187,7 +190,11 @@ class DeviceRunner:
             return
         if self.pipeline is None:
             clock = SampleClock(self.driver.nominal_period_ns)
-            self.pipeline = Pipeline(clock, self.calibration, self.epoch_offset_ns, self._resume)
+            tracking = self.cfg.gyro_bias_tracking
+            tracker = GyroBiasTracker(tracking) if tracking.enabled else None
+            self.pipeline = Pipeline(
+                clock, self.calibration, self.epoch_offset_ns, self._resume, tracker
+            )
             self.pipeline.want_raw = self._want_raw
         elif self.pipeline.clock.k_last >= 0:
             # a re-initialised chip restarts its sample grid; keep seq counting across it
@@ -392,6 +399,11 @@ class DeviceRunner:
             "calibration_error": self.calibration_error,
             "calibration_outside_span": self.calibration_outside_span,
             "raw_subscribed": self._want_raw,
+            "gyro_bias_tracking": (
+                self.pipeline.tracker.status()
+                if self.pipeline is not None and self.pipeline.tracker is not None
+                else initial_status(self.cfg)["gyro_bias_tracking"]
+            ),
             "last_error": self.last_error,
             "last_error_at": self.last_error_at,
             "chip_status": chip,

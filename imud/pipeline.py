@@ -4,6 +4,7 @@ raw channels --stamp (sample-clock fit, or the driver's own stamps)--> t_ns, seq
              --flags (invalid, saturated, alarm)--> per-sample flags
              --to_si (NaN where invalid)--> SI (the `raw` stream, on demand)
              --calibrate (temperature, bias, matrix; imud.calib.model)--> corrected
+             --track (gyro bias re-learned while still, when enabled; imud.calib.track)
              --> SampleBatch
 """
 
@@ -15,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from imud.calib.model import CalibrationModel, apply, fill_temperature
+from imud.calib.track import GyroBiasTracker
 from imud.channels import INVALID_MASK, SATURATED, Channel, SampleFlag
 from imud.chips.api import FifoRead, RawBatch
 from imud.timestamps import SampleClock, Stamped
@@ -102,6 +104,23 @@ def correct(
     return channels, clamped, last
 
 
+def track(
+    tracker: GyroBiasTracker, channels: dict[Channel, F64], period_s: float
+) -> dict[Channel, F64]:
+    """The gyro (and delta angles) less the bias the tracker holds, which then learns from the
+    batch. A new dict: the input may be the uncorrected stream's."""
+    gyro = channels.get(Channel.GYRO)
+    if gyro is None or gyro.shape[0] == 0:
+        return channels
+    bias = tracker.bias
+    out = dict(channels)
+    out[Channel.GYRO] = tracker.correct(gyro, channels.get(Channel.ACCEL), period_s)
+    delta = channels.get(Channel.DELTA_ANGLE)
+    if delta is not None and bias.any():
+        out[Channel.DELTA_ANGLE] = delta - bias * period_s
+    return out
+
+
 def holes(raw: RawBatch, flags: U32 | None) -> npt.NDArray[np.bool_] | None:
     """Samples with no valid measurement at all (every channel but temperature invalid): they
     are not published, and count as lost. None when there are none."""
@@ -141,9 +160,11 @@ class Pipeline:
         cal: CalibrationModel | None,
         epoch_offset_ns: int,
         resume: tuple[int, int] | None = None,
+        tracker: GyroBiasTracker | None = None,
     ) -> None:
         self.clock = clock
         self.cal = cal  # swapped whole by a reload between batches: no seq gap, no lock
+        self.tracker = tracker
         self.want_raw = False  # someone subscribes to the uncorrected stream
         self._last_temp: float | None = None
         self.epoch_offset_ns = epoch_offset_ns
@@ -191,6 +212,8 @@ class Pipeline:
                 flags = np.zeros(raw.n, dtype=np.uint32) if flags is None else flags
                 flags[clamped] |= _OUTSIDE
                 outside = int(np.count_nonzero(clamped))
+        if self.tracker is not None:
+            channels = track(self.tracker, channels, (st.period_ns or self.period_ns) / 1e9)
         batch_flags = (FLAG_CALIBRATED if cal is not None else 0) | (
             FLAG_RESYNC if st.lost_before else 0
         )

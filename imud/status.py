@@ -8,6 +8,7 @@ from typing import Any
 
 from imud import registry
 from imud.buses.models import describe
+from imud.calib.track import GyroBiasTracker
 from imud.channels import CHANNELS, channels_in
 from imud.chips.api import DeviceBase
 
@@ -47,6 +48,12 @@ def initial_status(cfg: DeviceBase) -> dict[str, Any]:
         "calibration_error": None,  # why the configured file is not applied
         "calibration_outside_span": 0,
         "raw_subscribed": False,
+        # None: off; else {state, bias_rad_s, windows, still_windows} (imud.calib.track)
+        "gyro_bias_tracking": (
+            GyroBiasTracker(cfg.gyro_bias_tracking).status()
+            if cfg.gyro_bias_tracking.enabled
+            else None
+        ),
         "last_error": None,
         "last_error_at": None,
         "chip_status": {},

@@ -33,6 +33,7 @@ import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
 from imud.buses.models import Bus
+from imud.calib.track import GyroBiasTracking
 from imud.channels import Channel
 from imud.sim.settings import SimSettings
 from imud.timestamps import Stamped
@@ -65,6 +66,10 @@ class DeviceBase(BaseModel):
         odr_hz: float
     calibration: Path | None = Field(None, description="calibration TOML, relative to the config")
     sim: SimSettings | None = Field(None, description="simulator settings (bus kind 'sim' only)")
+    gyro_bias_tracking: GyroBiasTracking = Field(
+        default_factory=GyroBiasTracking,
+        description="re-learn the gyro bias whenever the device is still (off by default)",
+    )
 
     @field_validator("calibration")
     @classmethod

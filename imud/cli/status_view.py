@@ -64,6 +64,7 @@ _NOTES = (
     ("restarts", "restarts", None),
     ("unexpected_errors", "unexpected errors", None),
     ("publish_dropped", "publish drops", None),
+    ("calibration_outside_span", "samples outside the calibration's temperature span", None),
 )
 _STATE_STYLE = {DeviceState.RUNNING: "green", DeviceState.ERROR: "red", DeviceState.STOPPED: "dim"}
 
@@ -113,6 +114,8 @@ def status_view(st: dict[str, Any], endpoint: str, console: Console) -> list[Ren
     for d in devices:
         parts = [f"{d[k]} {label}" for k, label, col in _NOTES if d.get(k) and col not in cols]
         line = ", ".join(parts)
+        if d.get("calibration_error"):
+            line += ("; " if line else "") + f"uncalibrated: {d['calibration_error']}"
         if d.get("last_error"):
             at = d.get("last_error_at")
             when = f" {_ago(now - at)} ago" if isinstance(at, int | float) else ""
@@ -127,6 +130,12 @@ def status_view(st: dict[str, Any], endpoint: str, console: Console) -> list[Ren
             text = Text(f"{d['name']} {d.get('chip', 'chip')}: ", style="bold")
             text.append(chip)
             out.append(cut(text, width))
+    for d in devices:
+        tracking = d.get("gyro_bias_tracking")
+        if tracking:
+            text = Text(f"{d['name']} gyro bias tracking: ", style="bold")
+            text.append(_tracking_line(tracking))
+            out.append(cut(text, width))
     for b in st.get("buses", []):
         if b.get("restarts") or b.get("last_error"):
             line = f"bus {b['bus']}: process restarted {b.get('restarts', 0)} times"
@@ -134,6 +143,15 @@ def status_view(st: dict[str, Any], endpoint: str, console: Console) -> list[Ren
                 line += f"; last error: {b['last_error']}"
             out.append(cut(Text(line), width))
     return out
+
+
+def _tracking_line(tr: dict[str, Any]) -> str:
+    """The tracker's state and what it holds, in mrad/s (a gyro bias is a few of them)."""
+    bias = ", ".join(f"{1e3 * b:+.2f}" for b in tr.get("bias_rad_s", ()))
+    return (
+        f"{tr.get('state', '?')}, ({bias}) mrad/s, "
+        f"{tr.get('learned_windows', 0)}/{tr.get('windows', 0)} windows learned"
+    )
 
 
 def _chip_line(cs: dict[str, Any]) -> str:
