@@ -119,6 +119,23 @@ def test_the_estimate_does_not_depend_on_how_samples_were_batched() -> None:
     )
 
 
+def test_a_bias_drifting_with_temperature_is_followed_with_the_averages_lag() -> None:
+    # 0.002 deg/s per second (an MPU6050's 0.02 deg/s/degC at 0.1 degC/s): the gyro mean moves
+    # between windows by far less than their noise, so every window stays still. An exponential
+    # average of a ramp r lags it by r W (1 - k) / k; the learned window is `confirm` windows old
+    # and its mean describes its middle: in all, r (W (1 - k) / k + confirm_s + W / 2) behind.
+    r = math.radians(0.002)
+    tr = GyroBiasTracker(SETTINGS)
+    gyro, accel = stream(300.0, seed=12)
+    gyro[:, 0] += r * np.arange(len(gyro)) / FS
+    feed(tr, gyro, accel)
+    k = 1.0 - math.exp(-SETTINGS.window_s / SETTINGS.time_constant_s)
+    lag_s = SETTINGS.window_s * (1 - k) / k + SETTINGS.confirm_s + SETTINGS.window_s / 2
+    expected = BIAS[0] + r * (300.0 - lag_s)
+    assert abs(tr.bias[0] - expected) < 5 * steady_sd(SETTINGS)
+    assert tr.state == TrackState.STILL
+
+
 def test_a_slow_turn_about_a_horizontal_axis_is_never_learned() -> None:
     # 0.05 deg/s adds no variance a window can see, but gravity turns g * rate * t: against the
     # still run's mean the accel change passes 4.6 standard errors within ~4 s, before the 10 s

@@ -10,10 +10,12 @@ thresholds in rad/s that suit one chip and no other:
 
 1. Gyro and accel variance (summed over axes) within the window are near the quietest seen
    recently (the noise floor): motion, vibration or handling raise them.
-2. The window's gyro and accel means agree with the mean of the still run it would extend (every
-   window since the run began) within their standard errors (a chi-squared test, 3 degrees of
-   freedom, p = 1e-4). A slow rotation about a horizontal axis adds no variance, but turns
-   gravity in the body frame: against the run's mean the change accumulates until it shows.
+2. The window's accel mean agrees with the mean of the still run it would extend (every window
+   since the run began), and its gyro mean with the previous window's, within their standard
+   errors (chi-squared tests, 3 degrees of freedom, p = 1e-4). A slow rotation about a
+   horizontal axis adds no variance, but turns gravity in the body frame: against the run's
+   mean the change accumulates until it shows. The gyro is compared window to window only: its
+   bias may drift with temperature during a run, and that drift is what is being tracked.
 3. A window's gyro mean is learned only once `confirm_s` more of the same run have passed both
    tests: a rotation too slow to show in one window shows within that horizon, and the run's
    unconfirmed windows are then dropped. Only turns about a horizontal axis slower than about
@@ -111,16 +113,19 @@ class _Stats:
         return _Stats(g, w.g_var, a, w.a_var, n)
 
 
-def _mean_change(run: _Stats, w: _Stats) -> tuple[float, float]:
-    """Chi-squared statistics (3 dof each) of window `w`'s gyro and accel means against the run's
-    (0 for accel when there is none), with the window's own variance as the noise."""
-    scale = 1.0 / w.m + 1.0 / run.m
-    d = w.g_mean - run.g_mean
-    chi_g = float(np.sum(d * d / (np.maximum(w.g_var, 1e-30) * scale)))
+def _chi2(d: F64, var: F64, scale: float) -> float:
+    return float(np.sum(d * d / (np.maximum(var, 1e-30) * scale)))
+
+
+def _mean_change(run: _Stats, prev: _Stats, w: _Stats) -> tuple[float, float]:
+    """Chi-squared statistics (3 dof each), with the window's own variance as the noise: of its
+    gyro mean against the previous window's (a turn starting or stopping; the bias itself may
+    drift with temperature over a run, and that is what is being tracked), and of its accel
+    mean against the whole run's (a slow tilt accumulates; 0 when there is no accel)."""
+    chi_g = _chi2(w.g_mean - prev.g_mean, w.g_var, 1.0 / w.m + 1.0 / prev.m)
     chi_a = 0.0
     if w.a_mean is not None and run.a_mean is not None and w.a_var is not None:
-        d = w.a_mean - run.a_mean
-        chi_a = float(np.sum(d * d / (np.maximum(w.a_var, 1e-30) * scale)))
+        chi_a = _chi2(w.a_mean - run.a_mean, w.a_var, 1.0 / w.m + 1.0 / run.m)
     return chi_g, chi_a
 
 
@@ -140,12 +145,13 @@ class GyroBiasTracker:
         self._floor_g: float | None = None
         self._floor_a: float | None = None
         self._run: _Stats | None = None  # the current still run's means
+        self._prev: _Stats | None = None  # its last window
         self._unconfirmed: list[F64] = []  # its windows' gyro means, oldest first
 
     def reset(self) -> None:
         """A new calibration was loaded: what was learned was relative to the old one."""
         self.bias = np.zeros(3)
-        self._run, self._unconfirmed = None, []
+        self._run, self._prev, self._unconfirmed = None, None, []
 
     def correct(self, gyro: F64, accel: F64 | None, period_s: float) -> F64:
         """The batch's gyro with the current estimate removed; then learn from the batch."""
@@ -189,7 +195,8 @@ class GyroBiasTracker:
         for i in range(k):  # a handful of windows per batch at most
             self.windows += 1
             if not ok[i]:
-                self.state, self._run, self._unconfirmed = TrackState.NO_DATA, None, []
+                self.state, self._unconfirmed = TrackState.NO_DATA, []
+                self._run = self._prev = None
                 continue
             w = _Stats(
                 g_mean[i],
@@ -216,12 +223,14 @@ class GyroBiasTracker:
         if self.windows <= LEARN_WINDOWS:
             self.state = TrackState.LEARNING
             return
-        run = self._run
+        run, prev = self._run, self._prev
         if not quiet:
-            self.state, self._run, self._unconfirmed = TrackState.MOVING, None, []
+            self.state, self._unconfirmed = TrackState.MOVING, []
+            self._run = self._prev = None
             return
-        if run is not None:
-            chi_g, chi_a = _mean_change(run, w)
+        self._prev = w
+        if run is not None and prev is not None:
+            chi_g, chi_a = _mean_change(run, prev, w)
             if chi_g > CHI2_3DOF_P1E4 or chi_a > CHI2_3DOF_P1E4:
                 # the run has ended (it was turning, or something moved it): drop what it has
                 # not confirmed, and start a new run at this window
