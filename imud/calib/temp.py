@@ -43,6 +43,16 @@ Over less than ~5 degC that error is a sizeable fraction of the span, and the sl
 little. Each further order needs the curve seen over that much more span to separate its
 term from the lower ones. k + 2 bins leaves a degree of freedom for the chi-squared test
 beyond the k + 1 coefficients.
+
+When the residuals fail the chi-squared test: a higher order the span allows, or one the user
+capped, is named (a misfit). Residuals that move together from block to block are a bias that
+wanders with time (bias instability), which every MEMS gyro has and no polynomial of
+temperature holds: the fit is accepted, with the coefficients' covariance inflated by the
+long-run factor of the residuals, and says so. Unless heating and cooling differ: the residual
+means of heating and cooling blocks are compared against the wander-inflated noise; at
+p < 1e-6 that is hysteresis (or a temperature sensor lagging the sensing element), refused, as
+one polynomial cannot correct it; at p < 0.01 it is said (slow wander can do that much, since
+the long-run factor is a lower bound).
 """
 
 from __future__ import annotations
@@ -70,6 +80,7 @@ SPAN_PER_ORDER_C = 5.0
 BIN_C = 1.0
 MIN_BLOCKS_PER_BIN = 3
 P_MOTION = 1e-6
+P_HYSTERESIS = 1e-6  # heating and cooling differ: refused below this, noted below P_REJECT
 MOTION_FLOOR = 2.0
 """A block moves when its within-block variance (any axis of accel or gyro) exceeds the
 recording's median block variance by the chi-squared quantile at p = 1e-6 (false alarms:
@@ -160,7 +171,7 @@ def _long_run_factor(z: F64) -> float:
     matters for coefficients, which are smooth weighted sums over many blocks. The sigma
     factor is its square root. It is a lower bound: the fitted polynomial absorbs the wander
     on the scale of the whole span (a simulated 100 s Gauss-Markov wander gave ~4x where the
-    true factor was ~7x). Taken from the residuals, it is only shown when the chi-squared test
+    true factor was ~7x). Taken from the residuals, it is only used when the chi-squared test
     has already failed."""
     best, n = 1.0, z.shape[0]
     level = 1
@@ -170,6 +181,48 @@ def _long_run_factor(z: F64) -> float:
         best = max(best, float(np.mean(means * means)) * level)
         level *= 2
     return math.sqrt(best)
+
+
+SLOPE_HALF = 15  # blocks each side of the regression that tells heating from cooling
+
+
+@dataclass(frozen=True)
+class _Hysteresis:
+    difference: F64  # mean residual while heating minus while cooling, per axis
+    chi2: float
+    p: float
+    heating: int
+    cooling: int
+
+
+def _hysteresis(
+    resid: F64, sigma: F64, temps: F64, t_ns: npt.NDArray[np.int64], sigma_t: float
+) -> _Hysteresis | None:
+    """Whether the residuals differ between heating and cooling blocks (3-dof chi-squared on
+    the difference of their means, with `sigma` the block noise, wander included). Heating or
+    cooling: the temperature's regression slope over 31 blocks, beyond 3 of its standard
+    errors. None when the recording lacks either direction."""
+    w = SLOPE_HALF
+    n = temps.shape[0]
+    if n < 2 * w + 1 + 2 * MIN_BLOCKS:
+        return None
+    t = (t_ns - t_ns[0]) / 1e9
+    k = np.arange(-w, w + 1, dtype=np.float64)
+    # slope per block of a least-squares line through its 2w + 1 neighbours (centred)
+    num = np.convolve(temps, k[::-1], mode="valid")
+    dt = np.convolve(t, k[::-1], mode="valid")  # sum k t: the same regression on time
+    slope = num / np.where(dt > 0, dt, np.inf)
+    se = sigma_t * math.sqrt(float(np.sum(k * k))) / np.where(dt > 0, dt, np.inf)
+    direction = np.zeros(n, dtype=np.int8)
+    direction[w : n - w] = np.where(slope > 3 * se, 1, np.where(slope < -3 * se, -1, 0))
+    heating, cooling = direction == 1, direction == -1
+    nh, nc = int(np.count_nonzero(heating)), int(np.count_nonzero(cooling))
+    if nh < MIN_BLOCKS or nc < MIN_BLOCKS:
+        return None
+    up, down = resid[heating].mean(axis=0), resid[cooling].mean(axis=0)
+    se_diff = sigma * math.sqrt(1.0 / nh + 1.0 / nc)
+    chi2 = float(np.sum(((up - down) / se_diff) ** 2))
+    return _Hysteresis(up - down, chi2, p_value(chi2, 3.0), nh, nc)
 
 
 def _design(x: F64, order: int) -> F64:
@@ -323,8 +376,12 @@ def fit_temperature(
     limited = allowed < max_order
     rho, rho_z = _lag1(resid / np.sqrt(best.var), t_ns)
     wander = _long_run_factor(resid / sigma)
+    hyst = _hysteresis(resid, sigma * wander, t_block, t_ns, sigma_t)
+    # refused at p < 1e-6, noted at p < 0.01: the wander factor is a lower bound, and the
+    # slowest wander also separates two legs recorded minutes apart
+    hysteresis = hyst is not None and hyst.p < P_HYSTERESIS and residuals["p_value"] < P_REJECT
+    inflation = 1.0
     if residuals["p_value"] < P_REJECT:
-        accepted = False
         hint = ""
         if limited:
             hint = f"; order {allowed + 1} would need {_needs(allowed + 1, span, occupied)}"
@@ -334,21 +391,52 @@ def fit_temperature(
             f"residuals exceed the measured block noise at order {order} (chi2/dof = "
             f"{chi2 / dof:.2f}, p = {residuals['p_value']:.1e})"
         )
-        if rho_z > 3.0 and not hint:
+        if hysteresis:
+            assert hyst is not None
+            accepted = False
+            step = ", ".join(f"{v:+.3g}" for v in hyst.difference)
             reasons.append(
-                f"{head} and drift together from block to block (lag-1 correlation "
-                f"{rho:.2f}): the bias wanders slowly (bias instability) or differs between "
-                "heating and cooling, which no polynomial of temperature holds; record a "
-                "heating and a cooling leg, or a longer ramp, so the wander averages out (the "
-                f"coefficients' sigmas understate their error at least {wander:.1f}x)"
+                f"{head}: the bias differs between heating and cooling by ({step}) (p = "
+                f"{hyst.p:.1e}, wander included): hysteresis, or the temperature sensor "
+                "lagging the sensing element, which one polynomial cannot correct; ramp more "
+                "slowly"
+            )
+        elif rho_z > 3.0 and not hint:
+            # a bias that wanders with time: every MEMS gyro has it, no polynomial of
+            # temperature holds it, and the polynomial is still right to within it
+            inflation = wander
+            cov = cov * wander**2
+            reasons.append(
+                f"{head}, and they drift together from block to block (lag-1 correlation "
+                f"{rho:.2f}): the bias wanders with time (bias instability), not with "
+                f"temperature. Accepted with the coefficients' sigmas inflated {wander:.1f}x "
+                "for it (a lower bound: the wander's slowest part looks like temperature)"
             )
         else:
+            accepted = False
             reasons.append(
-                f"{head}: the bias does not follow one polynomial of temperature (hysteresis "
-                "between heating and cooling, or the temperature sensor lagging the sensing "
-                f"element){hint}; ramp more slowly"
+                f"{head}: the bias does not follow one polynomial of temperature"
+                + (
+                    hint
+                    or " (the temperature sensor lagging the sensing element?); ramp more slowly"
+                )
             )
-    elif limited:
+    if hyst is None:
+        if accepted:
+            reasons.append(
+                "the temperature moved one way only: hysteresis between heating and cooling "
+                "cannot be seen in this recording (a leg the other way would show it)"
+            )
+    elif hyst.p < P_REJECT and not hysteresis:
+        # said, not refused: the slowest part of a wandering bias, which the block noise
+        # under-counts, also separates two legs recorded minutes apart
+        step = ", ".join(f"{v:+.3g}" for v in hyst.difference)
+        reasons.append(
+            f"the residuals differ between heating and cooling by ({step}) (p = {hyst.p:.1e} "
+            "against the block noise): hysteresis, the temperature sensor lagging the sensing "
+            "element, or slow bias wander; if it recurs, ramp more slowly"
+        )
+    if accepted and limited:
         reasons.append(
             f"order limited to {allowed} by the data; order {allowed + 1} needs "
             f"{_needs(allowed + 1, span, occupied)}"
@@ -372,6 +460,16 @@ def fit_temperature(
         "noise_block_temperature_c": sigma_t,
         "residual_lag1_correlation": rho,
         "sigma_factor_long_run": wander,
+        "sigma_inflation": inflation,
+        "hysteresis": None
+        if hyst is None
+        else {
+            "difference": hyst.difference.tolist(),
+            "chi2": hyst.chi2,
+            "p": hyst.p,
+            "heating_blocks": hyst.heating,
+            "cooling_blocks": hyst.cooling,
+        },
         "drift_fitted_peak_to_peak": np.ptp(fit_curve, axis=0).tolist(),
         "temperature_bins": occupied,
     }
