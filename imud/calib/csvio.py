@@ -7,7 +7,14 @@ refuses a file does more work follow: a bisection with the same parser finds the
 refuses, so the message can name that line and column.
 
 Every refusal is a `CsvError` naming the file, the line (1-based, as an editor numbers it) and
-the column, because the person fixing the file will open it in an editor at that line.
+the column (as the file's header writes it), because the person fixing the file will open it in
+an editor at that line.
+
+Files from other tools are read as they are, apart from unit options: their column names go
+through a closed table (acc_x, gyr_x, field.angular_velocity.x, ...; never a guess that could
+mix up sensors, and two columns for one quantity are refused), the time comes from a column
+in the unit its name states or `time_units` says, or from a sample counter and `rate_hz`, and
+a unit stated in a name is checked against the options.
 """
 
 from __future__ import annotations
@@ -37,9 +44,9 @@ Bool = npt.NDArray[np.bool_]
 AccelUnits = Literal["m/s2", "g"]
 GyroUnits = Literal["rad/s", "dps"]
 MagUnits = Literal["T", "uT"]
+TimeUnits = Literal["s", "ms", "us", "ns"]
 
-REQUIRED = ("timestamp_ns", "ax", "ay", "az", "gx", "gy", "gz")
-OPTIONAL = ("temp", "mx", "my", "mz", "flags")
+REQUIRED = ("timestamp_ns", "ax", "ay", "az", "gx", "gy", "gz")  # as imud writes them
 INTEGER_COLUMNS = frozenset({"timestamp_ns", "flags"})
 SATURATED_MASK = int(sum(int(f) for f in SATURATED.values()))  # bits 16-19 of the flags
 FLOAT_FORMAT = "%.9g"  # 9 significant digits: every float32 reads back to the same float32
@@ -146,78 +153,266 @@ def _normalise(name: str) -> str:
     return name.strip().strip("\"'").strip().lower()
 
 
-_AXIS = r"_?([xyz])(?:_|$)"
+# --- column names ------------------------------------------------------------------------------
+#
+# Other tools' names are read as imud's through a closed table (no pattern guessing): a name in
+# the table is unambiguous, and two columns that read as one quantity are refused, naming both.
+# Names are compared after _key(): lower case, a trailing unit in brackets cut off and kept
+# ("Time (s)", "w_RS_S_x [rad s^-1]"), every run of other characters than letters, digits and
+# '%' made one "_" ("field.angular_velocity.x" -> "field_angular_velocity_x").
+
+TIME, COUNTER = "time", "counter"  # the two ways a file says when each sample was taken
+_ACCEL_WORDS = ("acc", "accel", "accelerometer", "acceleration", "linear_acceleration",
+                "field_linear_acceleration", "alpha", "a_rs_s")  # fmt: skip
+_GYRO_WORDS = ("gyr", "gyro", "gyroscope", "angular_velocity", "field_angular_velocity", "omega",
+               "w_rs_s")  # fmt: skip
+_MAG_WORDS = ("mag", "magn", "magnetometer", "magnetic_field", "field_magnetic_field")
+_COMPACT = ("acc", "accel", "gyr", "gyro", "mag", "magn")  # also written without "_": AccX
+_TEMP_NAMES = ("temp", "temperature", "temp_c", "temperature_c")
+_COUNTER_NAMES = ("n_samples", "sample", "sample_index", "sample_number", "sample_nr",
+                  "sample_count", "sample_counter", "counter", "index", "seq",
+                  "field_header_seq")  # fmt: skip
+# a time column: its name, then the unit it may carry ("timestamp_ns", "time_s")
+_TIME_NAME = re.compile(r"^(?:timestamp|time|stamp|t|field_header_stamp)(?:_(s|sec|ms|us|ns))?$")
+_TIME_IMPLIED = {"millis": "ms", "micros": "us"}  # Arduino's millis() and micros() clocks
+NS_PER_UNIT = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
+# Sample rates every IMU lies within (1 Hz temperature logs to 32 kHz gyros, with margin). A time
+# column in the wrong unit is off by a factor of 1000 or more, which puts a 100 Hz..1 kHz
+# recording outside this band.
+RATE_RANGE_HZ = (0.5, 50_000.0)
+
+# units a header may state in brackets, per quantity, normalised to the option's value
+_UNIT_WORDS: dict[str, dict[str, str]] = {
+    "a": {"m/s^2": "m/s2", "m/s2": "m/s2", "m/s²": "m/s2", "m s^-2": "m/s2", "m s-2": "m/s2",
+          "ms^-2": "m/s2", "g": "g"},
+    "g": {"rad/s": "rad/s", "rad s^-1": "rad/s", "rad s-1": "rad/s", "deg/s": "dps",
+          "dps": "dps", "°/s": "dps", "degrees/s": "dps"},
+    "m": {"t": "T", "tesla": "T", "ut": "uT", "µt": "uT", "μt": "uT", "microtesla": "uT"},
+    TIME: {"s": "s", "sec": "s", "seconds": "s", "ms": "ms", "us": "us", "µs": "us",
+           "μs": "us", "ns": "ns"},
+}  # fmt: skip
+_UNIT_NOTE = re.compile(r"^(.*?)\s*[\[(]([^\[\]()]*)[\])]$")
 
 
-def _named(words: str, tail: str) -> re.Pattern[str]:
-    """One of `words` (a|b|c), after any prefix (imu_, field_), then `tail`."""
-    return re.compile(rf"^(?:\w*?_)?(?:{words}){tail}")
+def _aliases() -> dict[str, str]:
+    """Normalised name -> quantity (ax..gz, mx..mz, temp, counter, flags)."""
+    out: dict[str, str] = {"flags": "flags"}
+    for prefix, words in (("a", _ACCEL_WORDS), ("g", _GYRO_WORDS), ("m", _MAG_WORDS)):
+        for axis in "xyz":
+            out[prefix + axis] = prefix + axis
+            for w in words:
+                out[f"{w}_{axis}"] = prefix + axis
+                if w in _COMPACT:
+                    out[f"{w}{axis}"] = prefix + axis
+    out.update(dict.fromkeys(_TEMP_NAMES, "temp"))
+    out.update(dict.fromkeys(_COUNTER_NAMES, COUNTER))
+    return out
 
 
-_FOREIGN: tuple[tuple[str, re.Pattern[str]], ...] = (
-    ("a", _named("linear_acceleration|acceleration|accelerometer|accel|acc|a", _AXIS)),
-    ("g", _named("angular_velocity|gyroscope|gyro|gyr|omega|w|g", _AXIS)),
-    ("m", _named("magnetic_field|magnetometer|magn|mag|m", _AXIS)),
-    ("timestamp_ns", _named("timestamp|time|stamp|t", r"(?:_(?:ns|us|ms|s|sec))?$")),
-    ("temp", _named("temperature|temp|tmp", r"(?:_\w+)?$")),
+_ALIASES = _aliases()
+
+
+def _key(label: str) -> tuple[str, str | None]:
+    """A header name as the table compares it, and the unit a trailing bracket states."""
+    name, note = label.strip().lower(), None
+    m = _UNIT_NOTE.match(name)
+    if m is not None and m.group(1):
+        name, note = m.group(1), " ".join(m.group(2).split())
+    return re.sub(r"[^a-z0-9%]+", "_", name).strip("_"), note
+
+
+def _quantity(key: str) -> tuple[str, str | None] | None:
+    """The quantity a normalised name reads as, and the unit the name itself says."""
+    if key in _ALIASES:
+        return _ALIASES[key], None
+    if key in _TIME_IMPLIED:
+        return TIME, _TIME_IMPLIED[key]
+    m = _TIME_NAME.match(key)
+    if m is not None:
+        unit = m.group(1)
+        return TIME, "s" if unit == "sec" else unit
+    return None
+
+
+_WHAT = {TIME: "the time", COUNTER: "the sample counter"}
+
+
+@dataclass(frozen=True)
+class _Column:
+    """One column imud reads: its field (0-based), its name as the header writes it (every
+    message uses that name), and the unit the name states (None when it states none)."""
+
+    field: int
+    label: str
+    unit: str | None
+
+
+_FOREIGN_HINTS: tuple[tuple[str, re.Pattern[str]], ...] = tuple(
+    (ours, re.compile(rf"^(?:\w*?_)?(?:{words}){tail}"))
+    for ours, words, tail in (
+        ("a", "linear_acceleration|acceleration|accelerometer|accel|acc|a", r"_?([xyz])(?:_|$)"),
+        ("g", "angular_velocity|gyroscope|gyro|gyr|omega|w|g", r"_?([xyz])(?:_|$)"),
+        ("m", "magnetic_field|magnetometer|magn|mag|m", r"_?([xyz])(?:_|$)"),
+        ("timestamp_ns", "timestamp|time|stamp|t", r"(?:_(?:ns|us|ms|s|sec))?$"),
+        ("temp", "temperature|temp|tmp", r"(?:_\w+)?$"),
+    )
 )
 
 
-def _suggest(header: list[str]) -> dict[str, str]:
-    """Names other tools use (acc_x, gyro_x, field.angular_velocity.x, %time, ...) mapped to
-    imud's, for the columns the header lacks."""
+def _suggest(labels: list[str], known: set[str]) -> dict[str, str]:
+    """Names outside the table that look like a quantity the header lacks (imu_acc_x,
+    AccelerometerX_raw, %time), mapped to imud's name: a hint, never applied."""
     out: dict[str, str] = {}
-    for name in header:
-        if name in REQUIRED or name in OPTIONAL:
-            continue
-        key = re.sub(r"[^a-z0-9]+", "_", name.removeprefix("%")).strip("_")
-        for ours, pattern in _FOREIGN:
+    for label in labels:
+        key = _key(label)[0].removeprefix("%")
+        for ours, pattern in _FOREIGN_HINTS:
             m = pattern.match(key)
             if m is None:
                 continue
             target = ours + m.group(1) if m.groups() else ours
-            if target not in header and target not in out.values():
-                out[name] = target
+            if target not in known and target not in out.values():
+                out[_normalise(label)] = target
             break
     return out
 
 
-def _columns(path: Path, header_line: int, header: list[str]) -> dict[str, int]:
-    """imud's column names -> their index in the header, with every header problem refused."""
-    if header and all(_is_number(h) for h in header):
+def _columns(
+    path: Path, header_line: int, labels: list[str], units: dict[str, str]
+) -> dict[str, _Column]:
+    """Quantity -> the column that holds it, with every header problem refused: two columns
+    for one quantity, a unit in a name that contradicts the options, missing columns."""
+    if labels and all(_is_number(h) for h in labels):
         raise CsvError(
             path,
             "the first row is data, not a header: add a header row naming the columns, e.g. "
             + ",".join(REQUIRED),
             header_line,
         )
-    index: dict[str, int] = {}
-    for i, name in enumerate(header):
-        if name in REQUIRED or name in OPTIONAL:
-            if name in index:
-                raise CsvError(
-                    path, f"appears twice (fields {index[name] + 1} and {i + 1})", header_line, name
-                )
-            index[name] = i
-    missing = [c for c in REQUIRED if c not in index]
+    found: dict[str, list[_Column]] = {}
+    for i, label in enumerate(labels):
+        key, note = _key(label)
+        hit = _quantity(key)
+        if hit is not None:
+            found.setdefault(hit[0], []).append(_Column(i, label, hit[1] or note))
+    out: dict[str, _Column] = {}
+    for q, cols in found.items():
+        if len(cols) > 1 and (q != COUNTER or TIME not in found):  # a counter beside a time
+            # column is not read, so two of them are no ambiguity
+            a, b = cols[0], cols[1]
+            if _normalise(a.label) == _normalise(b.label):
+                msg = f"appears twice (fields {a.field + 1} and {b.field + 1})"
+                raise CsvError(path, msg, header_line, a.label)
+            raise CsvError(
+                path,
+                f"both read as {_WHAT.get(q, q)} (fields {a.field + 1} and "
+                f"{b.field + 1}): imud cannot tell which to use; delete one, or rename it to a "
+                f"name imud does not read (e.g. unused_{_key(b.label)[0]})",
+                header_line,
+                f"{a.label}, {b.label}",
+            )
+        out[q] = cols[0]
+    options = {"a": "--accel-units", "g": "--gyro-units", "m": "--mag-units"}
+    for q, col in out.items():
+        if len(q) != 2 or q[0] not in options:  # a sensor axis: ax .. mz
+            continue
+        said = _UNIT_WORDS[q[0]].get(col.unit or "")
+        if said is not None and said != units[q[0]]:
+            raise CsvError(
+                path,
+                f"its name says {col.unit} but the file is being read as {units[q[0]]}: "
+                f"pass {options[q[0]]} {said}",
+                header_line,
+                col.label,
+            )
+    required = ["ax", "ay", "az", "gx", "gy", "gz"]
+    missing = (["timestamp_ns"] if TIME not in out and COUNTER not in out else []) + [
+        c for c in required if c not in out
+    ]
     if missing:
-        msg = f"missing required columns {', '.join(missing)}; the header has: {', '.join(header)}"
-        raw = ",".join(header)
-        if len(header) == 1 and (";" in raw or "\t" in raw):
+        msg = f"missing required columns {', '.join(missing)}; the header has: {', '.join(labels)}"
+        raw = ",".join(labels)
+        if len(labels) == 1 and (";" in raw or "\t" in raw):
             msg += "; the fields look separated by ';' or tabs: imud reads comma-separated files"
-        guess = _suggest(header)
+        if "timestamp_ns" in missing:
+            msg += (
+                "; the time may be any column named timestamp_ns, time, timestamp or t (with "
+                "--time-units), or a sample counter such as n_samples (with --rate)"
+            )
+        used = {c.field for c in out.values()}
+        guess = _suggest([lb for i, lb in enumerate(labels) if i not in used], set(out))
+        guess = {k: v for k, v in guess.items() if v in missing or v in ("temp", "mx", "my", "mz")}
         if guess:
             renames = ", ".join(f"{k} -> {v}" for k, v in guess.items())
             msg += (
                 f"; these look like another tool's names: rename {renames} (and pass the unit "
-                "options if that tool's units are not SI; timestamp_ns is integer nanoseconds)"
+                "options if that tool's units are not SI)"
             )
         raise CsvError(path, msg, header_line)
-    mag = [c for c in ("mx", "my", "mz") if c in index]
+    mag = [c for c in ("mx", "my", "mz") if c in out]
     if 0 < len(mag) < 3:
-        lacking = ", ".join(c for c in ("mx", "my", "mz") if c not in index)
-        raise CsvError(path, f"has {', '.join(mag)} but not {lacking}", header_line)
-    return index
+        lacking = ", ".join(c for c in ("mx", "my", "mz") if c not in out)
+        have = ", ".join(out[c].label for c in mag)
+        raise CsvError(path, f"has {have} but not {lacking}", header_line)
+    return out
+
+
+def _time_plan(
+    path: Path,
+    header_line: int,
+    cols: dict[str, _Column],
+    time_units: TimeUnits | None,
+    rate_hz: float | None,
+) -> tuple[str, str | None]:
+    """Which column gives the time and in which unit: (TIME, unit or None when nothing says)
+    or (COUNTER, None) with rate_hz. Contradictions between the file and the options are
+    refused here, before any parsing."""
+    if TIME in cols:
+        col = cols[TIME]
+        said = None
+        if col.unit is not None:
+            said = _UNIT_WORDS[TIME].get(col.unit)
+            if said is None:
+                raise CsvError(
+                    path,
+                    f"its name says {col.unit!r}, not a time unit imud reads (s, ms, us, ns): "
+                    "convert the column",
+                    header_line,
+                    col.label,
+                )
+        if rate_hz is not None:
+            raise CsvError(
+                path,
+                "the file has a time column, and --rate is only for a file with a sample "
+                "counter and no time: drop --rate",
+                header_line,
+                col.label,
+            )
+        if said is not None and time_units is not None and said != time_units:
+            raise CsvError(
+                path,
+                f"its name says {said} but --time-units is {time_units}: drop --time-units",
+                header_line,
+                col.label,
+            )
+        return TIME, said or time_units
+    col = cols[COUNTER]
+    if time_units is not None:
+        raise CsvError(
+            path,
+            f"--time-units is for a time column; this file has none, only the sample counter "
+            f"{col.label}: drop --time-units (and give --rate)",
+            header_line,
+            col.label,
+        )
+    if rate_hz is None:
+        raise CsvError(
+            path,
+            "a sample counter and no time column: pass the rate it counts at, --rate HZ (each "
+            f"sample's time is then {col.label} / rate)",
+            header_line,
+            col.label,
+        )
+    return COUNTER, None
 
 
 def _first_bad_row(blob: list[bytes], usecols: list[int], dtype: np.dtype[np.void]) -> int:
@@ -249,23 +444,33 @@ def _loadtxt(text: bytes, usecols: list[int], dtype: np.dtype[np.void]) -> npt.N
 
 
 def _conversion_error(
-    path: Path, line: int, row: bytes, index: dict[str, int], dtype: np.dtype[np.void]
+    path: Path,
+    line: int,
+    row: bytes,
+    cols: dict[str, _Column],
+    dtype: np.dtype[np.void],
 ) -> CsvError:
     fields = row.split(b",")
-    for name, col in index.items():
-        text = fields[col].decode("utf-8", "replace").strip()
+    for name, col in cols.items():
+        if name not in (dtype.names or ()):
+            continue
+        text = fields[col.field].decode("utf-8", "replace").strip()
         if not text:
-            return CsvError(path, "empty value", line, name)
+            return CsvError(path, "empty value", line, col.label)
         try:
-            _loadtxt(fields[col], [0], np.dtype([(name, dtype[name])]))
+            _loadtxt(fields[col.field], [0], np.dtype([(name, dtype[name])]))
         except ValueError:
             pass
         else:
             continue
-        if name in INTEGER_COLUMNS and _is_number(text):
-            unit = "counts nanoseconds" if name == "timestamp_ns" else "is a bit field"
-            return CsvError(path, f"{text!r} is not an integer ({name} {unit})", line, name)
-        return CsvError(path, f"{text!r} is not a number", line, name)
+        if dtype[name] == np.int64 and _is_number(text):
+            what = {"flags": "is a bit field", COUNTER: "counts samples"}.get(
+                name, "counts nanoseconds"
+            )
+            return CsvError(
+                path, f"{text!r} is not an integer ({col.label} {what})", line, col.label
+            )
+        return CsvError(path, f"{text!r} is not a number", line, col.label)
     return CsvError(path, f"cannot read the line {row.decode('utf-8', 'replace')!r}", line)
 
 
@@ -280,11 +485,11 @@ def _unit_problems(
     mag: F64 | None,
     units: tuple[AccelUnits, GyroUnits, MagUnits],
     gravity: float,
-) -> list[tuple[str, str]]:
+) -> list[tuple[tuple[str, ...], str]]:
     """(columns, what is wrong) for each sensor whose values are off by orders of magnitude
     in the declared units. The values are those of the file, before conversion."""
     accel_units, gyro_units, mag_units = units
-    out: list[tuple[str, str]] = []
+    out: list[tuple[tuple[str, ...], str]] = []
 
     a = _median_norm(accel)
     a_si = a * (gravity if accel_units == "g" else 1.0)
@@ -298,7 +503,7 @@ def _unit_problems(
             hint = "is gravity removed (linear acceleration)? calibration needs what the chip read"
         else:
             hint = "milli-g or raw counts? convert to m/s^2 or g"
-        out.append(("ax, ay, az", f"{said}: {hint}"))
+        out.append((("ax", "ay", "az"), f"{said}: {hint}"))
 
     w = float(np.percentile(np.max(np.abs(gyro), axis=1), 99))
     w_si = w * (math.pi / 180 if gyro_units == "dps" else 1.0)
@@ -311,7 +516,7 @@ def _unit_problems(
             hint = "looks like dps: pass --gyro-units dps"
         else:
             hint = "raw counts? convert to rad/s or deg/s"
-        out.append(("gx, gy, gz", f"{said}: {hint}"))
+        out.append((("gx", "gy", "gz"), f"{said}: {hint}"))
 
     if mag is not None:
         m = _median_norm(mag)
@@ -330,13 +535,15 @@ def _unit_problems(
                 hint = "looks like gauss: multiply by 100 and pass --mag-units uT"
             else:
                 hint = "convert to tesla or uT"
-            out.append(("mx, my, mz", f"{said}: {hint}"))
+            out.append((("mx", "my", "mz"), f"{said}: {hint}"))
 
     if temp is not None:
         c = float(np.median(temp))
         if not TEMP_RANGE_C[0] <= c <= TEMP_RANGE_C[1]:
             hint = "looks like kelvin" if 200 <= c <= 450 else "raw counts?"
-            out.append(("temp", f"the median temp is {c:.4g}, not degC: {hint}; convert to degC"))
+            out.append(
+                (("temp",), f"the median temp is {c:.4g}, not degC: {hint}; convert to degC")
+            )
     return out
 
 
@@ -346,12 +553,19 @@ def read_csv(
     gyro_units: GyroUnits = "rad/s",
     mag_units: MagUnits = "T",
     gravity: float = 9.80665,
+    *,
+    time_units: TimeUnits | None = None,
+    rate_hz: float | None = None,
 ) -> Recording:
     """Read a recording (docs/recording-csv.md) into SI units.
 
     accel_units "g" multiplies by `gravity` (pass the local g the file's tool used, if it said);
-    gyro_units "dps" converts deg/s to rad/s; mag_units "uT" converts to tesla. Raises CsvError
-    for a file that cannot be used as it is, naming the line and column."""
+    gyro_units "dps" converts deg/s to rad/s; mag_units "uT" converts to tesla. Other tools'
+    column names are read through a closed table (acc_x, gyr_x, field.angular_velocity.x, ...).
+    time_units: the unit of a time column whose name does not say it (time, timestamp, t);
+    rate_hz: the rate of a sample counter (n_samples, sample, index, ...) in a file without a
+    time column, each sample's time being counter / rate. Raises CsvError for a file that cannot
+    be used as it is, naming the line and column."""
     path = Path(path)
     if accel_units not in ("m/s2", "g"):
         raise ValueError(f"accel_units must be 'm/s2' or 'g', not {accel_units!r}")
@@ -359,6 +573,10 @@ def read_csv(
         raise ValueError(f"gyro_units must be 'rad/s' or 'dps', not {gyro_units!r}")
     if mag_units not in ("T", "uT"):
         raise ValueError(f"mag_units must be 'T' or 'uT', not {mag_units!r}")
+    if time_units is not None and time_units not in NS_PER_UNIT:
+        raise ValueError(f"time_units must be 's', 'ms', 'us' or 'ns', not {time_units!r}")
+    if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise ValueError(f"rate_hz must be a positive number of Hz, not {rate_hz!r}")
     if not (math.isfinite(gravity) and gravity > 0):
         raise ValueError(f"gravity must be a positive number of m/s^2, not {gravity!r}")
 
@@ -372,21 +590,29 @@ def read_csv(
     if content.size == 0:
         raise CsvError(path, "no header row: the file has only comments or blank lines")
     h = int(content[0])
-    header_line = h + 1
     header_text = buf[lines.start[h] : lines.stop[h]].decode("utf-8", "replace")
-    header = [_normalise(x) for x in header_text.split(",")]
-    index = _columns(path, header_line, header)
-
     rows = content[1:]
+    commented = _commented_header(buf, lines, h, header_text)
+    if commented is not None:  # EuRoC style: "#timestamp [ns],w_RS_S_x [rad s^-1],..."
+        h, header_text = commented
+        rows = content
+    header_line = h + 1
+    labels = [x.strip().strip("\"'").strip() for x in header_text.split(",")]
+    units: dict[str, str] = {"a": accel_units, "g": gyro_units, "m": mag_units}
+    cols = _columns(path, header_line, labels, units)
+    when, unit = _time_plan(path, header_line, cols, time_units, rate_hz)
+    if when == TIME:
+        cols.pop(COUNTER, None)  # a counter beside a time column is not read
+
     line_of = rows + 1  # line number (1-based) of each data row
-    wrong = np.flatnonzero(lines.commas[rows] != len(header) - 1)
+    wrong = np.flatnonzero(lines.commas[rows] != len(labels) - 1)
     if wrong.size:
         k = int(wrong[0])
         found = int(lines.commas[rows[k]]) + 1
-        column = (header[found] or None) if found < len(header) else None
+        column = (labels[found] or None) if found < len(labels) else None
         raise CsvError(
             path,
-            f"{found} fields where the header (line {header_line}) names {len(header)}"
+            f"{found} fields where the header (line {header_line}) names {len(labels)}"
             + (": the line ends before this column" if column else "")
             + " (a truncated or merged line?)",
             int(line_of[k]),
@@ -396,53 +622,156 @@ def read_csv(
         plural = "" if rows.size == 1 else "s"
         raise CsvError(path, f"{rows.size} sample{plural}: at least 2 are needed")
 
-    names = list(index)
-    usecols = [index[n] for n in names]
-    dtype = np.dtype([(n, np.int64 if n in INTEGER_COLUMNS else np.float64) for n in names])
+    names = list(cols)
+    integer = {"flags", COUNTER} | ({TIME} if unit == "ns" else set())
+    dtype = np.dtype([(n, np.int64 if n in integer else np.float64) for n in names])
+    usecols = [cols[n].field for n in names]
     text = _data_bytes(buf, data, lines, rows)
     try:
         table = _loadtxt(text, usecols, dtype)
     except ValueError:
         blob = text.split(b"\n")[: rows.size]
         k = _first_bad_row(blob, usecols, dtype)
-        raise _conversion_error(path, int(line_of[k]), blob[k], index, dtype) from None
-    return _recording(path, table, line_of, (accel_units, gyro_units, mag_units), gravity)
+        raise _conversion_error(path, int(line_of[k]), blob[k], cols, dtype) from None
+    t_ns = _times(path, table, cols, (header_line, line_of), when, unit, rate_hz)
+    return _recording(
+        path, table, cols, t_ns, line_of, (accel_units, gyro_units, mag_units), gravity
+    )
+
+
+def _commented_header(
+    buf: bytes, lines: _Lines, first: int, first_text: str
+) -> tuple[int, str] | None:
+    """The header some tools write as a comment (EuRoC/ASL: "#timestamp [ns],w_RS_S_x ..."):
+    when the first content line is all numbers, the comment line just before it is the header
+    if it names as many fields as that line holds and they are not numbers."""
+    fields = first_text.split(",")
+    if not all(_is_number(f) for f in fields):
+        return None
+    k = first - 1
+    while k >= 0 and not buf[lines.start[k] : lines.end[k]].strip():
+        k -= 1  # blank lines between
+    if k < 0:
+        return None
+    text = buf[lines.start[k] : lines.end[k]].decode("utf-8", "replace").strip()
+    if not text.startswith("#"):
+        return None
+    names = text[1:].split(",")
+    if len(names) != len(fields) or any(_is_number(n) or not n.strip() for n in names):
+        return None
+    return k, text[1:]
+
+
+def _times(
+    path: Path,
+    table: npt.NDArray[np.void],
+    cols: dict[str, _Column],
+    lines: tuple[int, I64],
+    when: str,
+    unit: str | None,
+    rate_hz: float | None,
+) -> I64:
+    """Each sample's time in integer nanoseconds, from a time column in its unit or a counter
+    and the rate; refused when it does not strictly increase, when no unit was said, or when
+    the unit gives a sample rate no IMU has. lines: the header's line and each row's."""
+    header_line, line_of = lines
+    col = cols[when]
+    v = np.ascontiguousarray(table[when])
+    if when == TIME and v.dtype == np.float64:
+        bad = np.flatnonzero(~np.isfinite(v))
+        if bad.size:
+            k = int(bad[0])
+            raise CsvError(path, f"{v[k]} is not a finite number", int(line_of[k]), col.label)
+    back = np.flatnonzero(np.diff(v) <= 0)
+    if back.size:
+        k = int(back[0])
+        what = (
+            "a sample counter must strictly increase (a duplicated row, or a counter that "
+            "wrapped around: unwrap it first)"
+            if when == COUNTER
+            else "timestamps must strictly increase (a duplicated or reordered row?)"
+        )
+        raise CsvError(
+            path,
+            f"{v[k + 1]} is not after {v[k]} on line {line_of[k]}: {what}",
+            int(line_of[k + 1]),
+            col.label,
+        )
+    if when == COUNTER:
+        assert rate_hz is not None
+        t: I64 = np.round(v.astype(np.float64) * (1e9 / rate_hz)).astype(np.int64)
+        return t
+    step = float(np.median(np.diff(v)))
+    if unit is None:
+        raise CsvError(
+            path,
+            "its name does not say its unit: pass --time-units s, ms, us or ns"
+            + _time_hint(step, None),
+            header_line,
+            col.label,
+        )
+    scale = NS_PER_UNIT[unit]
+    rate = 1e9 / (step * scale)
+    lo, hi = RATE_RANGE_HZ
+    if not lo <= rate <= hi:
+        raise CsvError(
+            path,
+            f"read as {unit}, its median step {step:.4g} {unit} is a rate of {rate:.4g} Hz, "
+            f"outside any IMU's ({lo:g} Hz .. {hi:g} Hz)" + _time_hint(step, unit),
+            None,
+            col.label,
+        )
+    if v.dtype == np.int64:
+        return v
+    t = np.round((v - v[0]) * scale).astype(np.int64) + round(float(v[0]) * scale)
+    same = np.flatnonzero(np.diff(t) <= 0)
+    if same.size:
+        k = int(same[0])
+        raise CsvError(
+            path,
+            f"{v[k + 1]!r} {unit} is within a nanosecond of {v[k]!r} on line {line_of[k]}: "
+            "timestamps must strictly increase",
+            int(line_of[k + 1]),
+            col.label,
+        )
+    return t
+
+
+def _time_hint(step: float, unit: str | None) -> str:
+    """': looks like X: ...' when one time unit makes the median step a common IMU rate
+    (10 Hz .. 10 kHz; the units are 1000 apart, so at most one does)."""
+    for u, scale in NS_PER_UNIT.items():
+        if u != unit and 10.0 <= 1e9 / (step * scale) < 10_000.0:
+            rate = 1e9 / (step * scale)
+            return f": looks like {u} ({rate:.4g} Hz): pass --time-units {u}"
+    return ""
 
 
 def _recording(
     path: Path,
     table: npt.NDArray[np.void],
+    cols: dict[str, _Column],
+    t: I64,
     line_of: I64,
     units: tuple[AccelUnits, GyroUnits, MagUnits],
     gravity: float,
 ) -> Recording:
-    """Checks on the parsed values (finite, increasing, plausible units), then SI units."""
+    """Checks on the parsed values (finite, plausible units), then SI units."""
     names = table.dtype.names or ()
     first_bad: dict[str, int] = {}  # column -> first row where it is NaN or infinite
     for name in names:
-        if name not in INTEGER_COLUMNS:
+        if name not in (TIME, COUNTER, "flags"):
             bad = np.flatnonzero(~np.isfinite(table[name]))
             if bad.size:
                 first_bad[name] = int(bad[0])
     if first_bad:
-        name = min(first_bad, key=lambda n: (first_bad[n], names.index(n)))
+        name = min(first_bad, key=lambda n: (first_bad[n], cols[n].field))
         k = first_bad[name]
         raise CsvError(
             path,
             f"{table[name][k]} is not a finite number (a sample marked invalid? drop the row)",
             int(line_of[k]),
-            name,
-        )
-    t = np.ascontiguousarray(table["timestamp_ns"])
-    back = np.flatnonzero(np.diff(t) <= 0)
-    if back.size:
-        k = int(back[0])
-        raise CsvError(
-            path,
-            f"{t[k + 1]} is not after {t[k]} on line {line_of[k]}: timestamps must strictly "
-            "increase (a duplicated or reordered row?)",
-            int(line_of[k + 1]),
-            "timestamp_ns",
+            cols[name].label,
         )
     saturated = None
     if "flags" in names:
@@ -450,7 +779,9 @@ def _recording(
         out_of_range = np.flatnonzero((flags < 0) | (flags > 0xFFFFFFFF))
         if out_of_range.size:
             k = int(out_of_range[0])
-            raise CsvError(path, f"{flags[k]} is not a 32-bit flag word", int(line_of[k]), "flags")
+            raise CsvError(
+                path, f"{flags[k]} is not a 32-bit flag word", int(line_of[k]), cols["flags"].label
+            )
         saturated = (flags & SATURATED_MASK) != 0
 
     def vec(a: str, b: str, c: str) -> F64:
@@ -461,8 +792,8 @@ def _recording(
     mag = vec("mx", "my", "mz") if "mx" in names else None
     problems = _unit_problems(accel, gyro, temp, mag, units, gravity)
     if problems:
-        cols = "; ".join(c for c, _ in problems)
-        raise CsvError(path, "; ".join(p for _, p in problems), None, cols)
+        cols_text = "; ".join(", ".join(cols[q].label for q in qs) for qs, _ in problems)
+        raise CsvError(path, "; ".join(p for _, p in problems), None, cols_text)
     accel_units, gyro_units, mag_units = units
     if accel_units == "g":
         accel *= gravity

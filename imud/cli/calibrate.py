@@ -40,12 +40,23 @@ def _units(f: Any) -> Any:
         show_default=True,
         help="gyro columns of --from",
     )(f)
-    return click.option(
+    f = click.option(
         "--mag-units",
         type=click.Choice(["T", "uT"]),
         default="T",
         show_default=True,
         help="mag columns of --from",
+    )(f)
+    f = click.option(
+        "--time-units",
+        type=click.Choice(["s", "ms", "us", "ns"]),
+        help="time column of --from whose name does not say its unit (time, timestamp, t)",
+    )(f)
+    return click.option(
+        "--rate",
+        "rate_hz",
+        type=click.FloatRange(min=0, min_open=True),
+        help="sample rate, Hz, of --from's sample counter (n_samples, ...) when it has no time",
     )(f)
 
 
@@ -189,7 +200,12 @@ class Job:
             try:
                 comments = read_comments(path)
                 rec = read_csv(
-                    path, self.o["accel_units"], self.o["gyro_units"], self.o["mag_units"]
+                    path,
+                    self.o["accel_units"],
+                    self.o["gyro_units"],
+                    self.o["mag_units"],
+                    time_units=self.o["time_units"],
+                    rate_hz=self.o["rate_hz"],
                 )
             except CsvError as e:
                 _fail(str(e), EXIT_USAGE, self.as_json)
@@ -451,7 +467,14 @@ def mag(field_ut: float | None, **opts: Any) -> None:
 @click.option("--out", required=True, type=click.Path(dir_okay=False))
 @_units
 def apply_cmd(
-    cal_path: str, from_csv: str, out: str, accel_units: str, gyro_units: str, mag_units: str
+    cal_path: str,
+    from_csv: str,
+    out: str,
+    accel_units: str,
+    gyro_units: str,
+    mag_units: str,
+    time_units: str | None,
+    rate_hz: float | None,
 ) -> None:
     """Apply a calibration file to an uncorrected recording with exactly the daemon's code
     (imud.pipeline.correct), writing the corrected recording."""
@@ -462,7 +485,14 @@ def apply_cmd(
 
     try:
         cal = load_calibration(Path(cal_path))
-        rec = read_csv(Path(from_csv), accel_units, gyro_units, mag_units)  # type: ignore[arg-type]
+        rec = read_csv(
+            Path(from_csv),
+            accel_units,  # type: ignore[arg-type]
+            gyro_units,  # type: ignore[arg-type]
+            mag_units,  # type: ignore[arg-type]
+            time_units=time_units,  # type: ignore[arg-type]
+            rate_hz=rate_hz,
+        )
     except (CalibrationError, CsvError) as e:
         _fail(str(e), EXIT_USAGE)
     si = {Channel.ACCEL: rec.accel, Channel.GYRO: rec.gyro}
