@@ -146,6 +146,28 @@ def test_every_pose_is_found_and_no_motion_is_included() -> None:
         assert not iv.saturated and iv.temp_c is None
 
 
+def test_a_smooth_tip_under_shaking_is_cut_out_of_what_looks_still() -> None:
+    """Vibration everywhere (a shaking hand, an engine) sets the noise floor: white noise 60x
+    the sensor's on accel and gyro. A slow 35 deg tip (3 s, peak rate 0.3 rad/s) between two
+    holds then adds less variance than three spreads of that floor, so the variance test alone
+    joins both holds and the tip into one interval whose mean lies between the poses. The
+    window means jump during the tip (gravity turns by 5.6 m/s^2): the run is cut there, and
+    each interval lies inside one hold."""
+    s = session(
+        [((1.0, 0.0, 0.0), np.radians(35.0))],
+        seed=3,
+        fs=200.0,
+        still_s=6.0,
+        move_s=3.0,
+        accel_n=60 * 4e-3,
+        gyro_n=60 * 8.7e-5,
+    )
+    found = find_still(s.rec)
+    assert len(found) == 2
+    for iv, (a, b) in zip(found, s.still, strict=True):
+        assert a <= iv.start < iv.end <= b
+
+
 def test_the_means_and_their_errors_match_the_physics() -> None:
     s = session(TWELVE, seed=2, fs=400.0)
     found = find_still(s.rec)

@@ -15,6 +15,16 @@ slow temperature or vibration wander. A window is still when it is still for bot
 runs of still windows are trimmed by one window at each end (the onset and settling of motion
 lie below the thresholds) and kept when they last at least `min_s` (2 s by default).
 
+A floor read from the data is the floor of whatever the data holds: a board held in a shaking
+hand has the tremor's variance everywhere, and a smooth tip from one pose to the next can stay
+below three spreads of it, joining two poses into one interval whose mean lies between them.
+So each run is also cut where the mean jumps: the accel and gyro means of consecutive
+non-overlapping windows move beyond the windows' own variance (chi-squared, 3 dof, p = 1e-6)
+and by more than 5 times the run's median step (a hold's slow wobble moves the mean a little
+at every step; a tip moves it by metres per second squared at once). The windows on either
+side of a jump are dropped and the pieces kept as poses of their own when they still last
+`min_s`.
+
 Noise of a mean. MEMS outputs are low-pass filtered and drift, so consecutive samples are
 correlated and sigma/sqrt(n) underestimates the error of a mean. Block averaging (Flyvbjerg &
 Petersen 1989) repeatedly averages pairs; the variance of the block means times the block
@@ -52,6 +62,8 @@ BLOCK_START_KEEP = 8192  # finest blocking level examined keeps at least this ma
 WINDOW_HOPS = 10  # window positions per window length
 SATURATION_MIN_FRACTION = 0.01  # of an interval's samples sitting on the recording's extreme
 SATURATION_MIN_COUNT = 5
+CHI2_3DOF_P1E6 = 30.66  # chi-squared quantile, 3 degrees of freedom, upper tail 1e-6
+JUMP_TO_TYPICAL = 5.0  # a jump between windows is this many times the run's median step
 
 
 class CalibrationRefused(ValueError):
@@ -337,6 +349,48 @@ def interval_stats(
     )
 
 
+def _mean_jumps(x: F64, m: int) -> BoolArray:
+    """For consecutive windows of `m` samples of x (k, m, 3): whether the mean moved between
+    window i and i + 1 beyond the windows' own noise (chi-squared, 3 dof, p = 1e-6), and by
+    more than JUMP_TO_TYPICAL times the run's median step. The second test keeps a held pose's
+    slow wobble (a hand's, a few mrad: significant against white noise, yet the pose is one
+    pose, and its mean's noise is counted by block averaging) from cutting it: a tip between
+    poses moves the mean by tens of times the steps of a hold. A window's variance is floored
+    at a tenth of the run's median, so a quantised, nearly constant channel does not make one
+    LSB a jump."""
+    mu = x.mean(axis=1)
+    var = x.var(axis=1, ddof=1)
+    var = np.maximum(var, 0.1 * np.median(var, axis=0) + 1e-300)
+    d = np.diff(mu, axis=0)
+    step = np.sqrt(np.sum(d * d, axis=1))
+    chi2 = np.sum(d * d / ((var[1:] + var[:-1]) / m), axis=1)
+    jump: BoolArray = (chi2 > CHI2_3DOF_P1E6) & (step > JUMP_TO_TYPICAL * np.median(step))
+    return jump
+
+
+def _split_on_mean_change(rec: Recording, start: int, end: int, m: int) -> list[tuple[int, int]]:
+    """[start, end) cut where the accel or gyro mean jumps between windows of m samples (see
+    the module docstring); the two windows around each jump are dropped."""
+    k = (end - start) // m
+    if k < 3:
+        return [(start, end)]
+    used = k * m
+    a = rec.accel[start : start + used].reshape(k, m, 3)
+    g = rec.gyro[start : start + used].reshape(k, m, 3)
+    jump = _mean_jumps(a, m) | _mean_jumps(g, m)
+    if not jump.any():
+        return [(start, end)]
+    keep = np.ones(k, dtype=bool)
+    keep[:-1] &= ~jump  # the window before a jump
+    keep[1:] &= ~jump  # and the one after it
+    pieces = []
+    for w0, w1 in _runs(keep):
+        a0 = start + w0 * m
+        a1 = end if w1 == k else start + w1 * m
+        pieces.append((a0, a1))
+    return pieces
+
+
 def find_still(
     rec: Recording, min_s: float = 2.0, activity: Activity | None = None
 ) -> list[StillInterval]:
@@ -354,7 +408,9 @@ def find_still(
         end = end - act.window if j1 < last else rec.n
         if end - start < 2 or (end - start) * period_s < min_s:
             continue
-        out.append(interval_stats(rec, start, end, rails))
+        for a, b in _split_on_mean_change(rec, start, end, act.window):
+            if b - a >= 2 and (b - a) * period_s >= min_s:
+                out.append(interval_stats(rec, a, b, rails))
     return out
 
 
