@@ -214,12 +214,17 @@ def local_gravity(
     )
 
 
-def run_gyro(rec: Recording, full_turns: bool, cf: CalibrationFile | None = None) -> Outcome:
+def run_gyro(
+    rec: Recording,
+    full_turns: bool,
+    cf: CalibrationFile | None = None,
+    min_still_s: float = 2.0,
+) -> Outcome:
     """A still recording gives the bias; one with rotations between still poses gives the bias
     (from the poses) and the full matrix. The file's accelerometer calibration, when there is
     one, corrects the gravity directions first, so the gyro lands in the calibrated frame."""
     from imud.calib.gyro import fit_gyro_bias, fit_gyro_full
-    from imud.calib.still import check_still
+    from imud.calib.still import check_still, find_still
 
     notes: list[str] = []
     if cf is not None and cf.accel is not None:
@@ -230,7 +235,7 @@ def run_gyro(rec: Recording, full_turns: bool, cf: CalibrationFile | None = None
     if check_still(rec).still:
         est = fit_gyro_bias(rec)
     else:
-        est = fit_gyro_full(rec, None, None, full_turns)
+        est = fit_gyro_full(rec, find_still(rec, min_still_s), None, full_turns)
     report = affine_report(est)
     report["notes"] = notes
     return Outcome(
