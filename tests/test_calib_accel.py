@@ -125,6 +125,19 @@ def test_fewer_than_nine_orientations_says_how_many_more() -> None:
     assert "add 2 more" in msg and "corner" in msg
 
 
+def test_nine_orientations_fit_exactly_and_are_not_accepted_untested() -> None:
+    # nine poses, nine parameters: the fit passes through any nine means (a moved pose too),
+    # so nothing checks it; one more pose gives the residual test a degree of freedom
+    nine = FACES + CORNERS[:3]
+    est = fit_accel_intervals(pose_means(nine, np.random.default_rng(4)), G).estimate
+    assert est.fit.residuals["dof"] == 0
+    assert not est.verdict.accepted
+    assert "the fit is exact and its residuals cannot be tested" in est.verdict.reasons[0]
+    ten = FACES + CORNERS + EDGES[:1]
+    est = fit_accel_intervals(pose_means(ten, np.random.default_rng(4)), G).estimate
+    assert est.fit.residuals["dof"] == 1 and est.verdict.accepted
+
+
 def test_six_faces_axes_model_is_the_ferraris_solution() -> None:
     res = fit_accel_intervals(pose_means(FACES, np.random.default_rng(3)), G, model="axes")
     est = res.estimate

@@ -493,9 +493,13 @@ def _verdict(
     ok = True
     res = est.residuals
     if res["dof"] <= 0:
+        # an exact fit passes any data through, a pose that moved included, and its sigmas
+        # may be huge (nine poses near a cone): nothing says it is right
+        ok = False
         reasons.append(
             f"{len(used)} poses for {len(est.names)} parameters: the fit is exact and its "
-            "residuals cannot be tested; add a few more poses to check it"
+            "residuals cannot be tested; add at least one more pose (three or more make the "
+            "test worth having)"
         )
     elif res["p_value"] < significance:
         ok = False

@@ -301,6 +301,16 @@ def _prepared(job: Job, rec: Any) -> tuple[Any, list[str]]:
     return (rec, []) if job.out is None else compensate(rec, job.existing())
 
 
+def _min_still(f: Any) -> Any:
+    return click.option(
+        "--min-still",
+        type=click.FloatRange(min=0.5),
+        default=2.0,
+        show_default=True,
+        help="seconds a pose must be held still to count",
+    )(f)
+
+
 def _gravity(job: Job, gravity: float | None, lat: float | None, h: float | None) -> Any:
     from imud.calib.procedure import local_gravity
 
@@ -323,13 +333,7 @@ def _gravity(job: Job, gravity: float | None, lat: float | None, h: float | None
     show_default=True,
     help="full: 9 parameters from >= 9 orientations; axes: the six faces (Ferraris)",
 )
-@click.option(
-    "--min-still",
-    type=click.FloatRange(min=0.5),
-    default=2.0,
-    show_default=True,
-    help="seconds a pose must be held still to count",
-)
+@_min_still
 @click.option(
     "--poses",
     type=click.IntRange(min=6),
@@ -367,9 +371,11 @@ def accel(
         from imud.calib.accel import fit_accel_intervals
 
         try:
-            fit_accel_intervals(ivs, g, model)  # type: ignore[arg-type]
+            res = fit_accel_intervals(ivs, g, model)  # type: ignore[arg-type]
         except CalibrationRefused as e:
             return str(e)
+        if res.estimate.fit.residuals["dof"] <= 0:  # exact: untestable, so not yet
+            return res.estimate.verdict.reasons[0]
         return None
 
     rec = job.recording(lambda j: capture_poses(j, poses, min_still, missing))
@@ -389,7 +395,8 @@ def accel(
     help="each rotation between still poses was a whole number of turns "
     "(a turntable or Ferraris session): gives the scale about the vertical too",
 )
-def gyro(full_turns: bool, **opts: Any) -> None:
+@_min_still
+def gyro(full_turns: bool, min_still: float, **opts: Any) -> None:
     """Gyro bias from still data (its standard error from the data's own noise); with rotations
     between still poses, also scale and misalignment."""
     from imud.calib.procedure import run_gyro
@@ -402,7 +409,7 @@ def gyro(full_turns: bool, **opts: Any) -> None:
     rec, notes = _prepared(job, rec)
     cf = job.existing() if job.out is not None else None
     try:
-        outcome = run_gyro(rec, full_turns, cf)
+        outcome = run_gyro(rec, full_turns, cf, min_still)
     except CalibrationRefused as e:
         _refused(e, job.as_json)
     job.finish(outcome, None, notes, rec.source)
@@ -423,7 +430,7 @@ def temp(sensor: str, max_order: int, **opts: Any) -> None:
     job = Job("temp", opts)
     from imud.cli.calibrate_live import capture_for
 
-    rec = job.recording(lambda j: capture_for(j, 600.0))
+    rec = job.recording(lambda j: capture_for(j, 600.0, show_temperature=True))
     sensors: tuple[Literal["accel", "gyro"], ...] = (
         ("accel", "gyro") if sensor == "both" else (sensor,)  # type: ignore[assignment]
     )

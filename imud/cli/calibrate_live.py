@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from imud.calib.recording import Recording
 from imud.calib.still import StillInterval
+from imud.calib.temp import SPAN_PER_ORDER_C
 from imud.channels import INVALID_MASK, SATURATED, Channel
 from imud.status import DeviceState
 
@@ -188,9 +189,12 @@ def capture_poses(
     return buf.recording()
 
 
-def capture_for(job: Any, default_s: float, need_mag: bool = False) -> Recording:
+def capture_for(
+    job: Any, default_s: float, need_mag: bool = False, show_temperature: bool = False
+) -> Recording:
     """Capture for --duration (or `default_s`) seconds; for the magnetometer, stop as soon as
-    the field has been seen from enough directions."""
+    the field has been seen from enough directions; for a temperature fit, show the span so far
+    (each polynomial order needs 5 degC more of it)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     limit = job.o["duration"] or default_s
@@ -214,6 +218,16 @@ def capture_for(job: Any, default_s: float, need_mag: bool = False) -> Recording
                 prog.update(task, description=f"rotate it every way: {frac:.0%} of directions")
                 if frac >= 0.95:
                     break
+            elif show_temperature and now - last >= UPDATE_S and buf.n > 1:
+                last = now
+                temp = buf.recording().temp
+                if temp is not None and np.isfinite(temp).any():
+                    lo, hi = float(np.nanmin(temp)), float(np.nanmax(temp))
+                    prog.update(
+                        task,
+                        description=f"keep it still: {lo:.1f} to {hi:.1f} degC "
+                        f"(span {hi - lo:.1f}; order k needs {SPAN_PER_ORDER_C:g}k)",
+                    )
         it.close()
     if buf.n < 2:
         from imud.cli.common import EXIT_NO_DAEMON, _fail
