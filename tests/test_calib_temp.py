@@ -173,12 +173,13 @@ def test_a_wandering_bias_is_accepted_with_its_sigmas_inflated_and_named_as_wand
     assert (z * inflation).max() > 4.0  # ...where the white-noise sigmas alone would not hold
 
 
-def test_a_lagging_temperature_sensor_is_refused_as_hysteresis() -> None:
+def test_a_lagging_temperature_sensor_is_named_as_a_heating_cooling_difference() -> None:
     """Heat 10 -> 50 degC in 20 min, cool back in 20 min; the die's temperature sensor lags the
     sensing element by 20 s, so it reads T - 20 s * dT/dt. With a linear drift the bias is off
     by slope * 20 s * 0.033 degC/s = +-0.67 degC * slope: one offset while heating, the opposite
-    while cooling (1e-3 rad/s on x, ~10x the block noise). One polynomial cannot hold it; with
-    an offset per direction the fit does."""
+    while cooling (1e-3 rad/s on x, ~10x the block noise). One polynomial cannot hold it. The
+    fit says so with the difference, without refusing: over one cycle, slow bias wander can
+    separate two legs as well."""
     slope = np.array([[1.5e-3, -8e-4, 2e-3]])  # rad/s per degC
     up = ramp(1200.0, 10.0, 50.0, slope, LINE, seed=21)
     down = ramp(1200.0, 50.0, 10.0, slope, LINE, seed=22)
@@ -195,9 +196,8 @@ def test_a_lagging_temperature_sensor_is_refused_as_hysteresis() -> None:
         source="chamber.csv",
     )
     est = fit_temperature(rec, "gyro")
-    assert not est.verdict.accepted
-    assert "differs between heating and cooling" in est.verdict.reasons[0]
-    assert "hysteresis" in est.verdict.reasons[0]
+    (note,) = [r for r in est.verdict.reasons if "between heating and cooling" in r]
+    assert "hysteresis" in note and "lagging" in note
     hyst = est.fit.details["hysteresis"]
     expected = 2 * 0.67 * slope[0]  # heating minus cooling: the sensor reads low while heating
     np.testing.assert_allclose(hyst["difference"], expected, rtol=0.1, atol=5e-5)
