@@ -1,8 +1,12 @@
 """Gyro calibration against sessions synthesised here (tests/test_calib_still.py `session`):
 raw gyro = A_g w + b_g + white noise of density N, so the calibration is C = A_g^-1, b = b_g;
-the accelerometer gives gravity's direction in each still pose."""
+the accelerometer gives gravity's direction in each still pose. `earth_session` puts the same
+motions on the turning Earth: raw gyro = A_g (w + R^T e) + b_g + noise, e Earth's rotation in a
+level world frame (z up) whose north is at a chosen azimuth."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -20,6 +24,7 @@ from imud.calib.recording import Recording
 from imud.calib.still import CalibrationRefused, find_still
 from tests.test_calib_still import (
     TWELVE,
+    G,
     Session,
     X,
     Y,
@@ -205,3 +210,164 @@ def test_bias_as_a_vector_or_from_the_poses() -> None:
         est = fit_gyro_full(rec, found, bias)
         assert est.verdict.accepted, est.verdict.reasons
         assert np.all(np.abs((est.matrix - C_TRUE).ravel() / est.fit.sigma()[:9]) < 4)
+
+
+# --- Earth's rotation -----------------------------------------------------------------------------
+
+OMEGA = 7.292115e-5  # rad/s, Earth's rotation (WGS84)
+LAT = 49.6  # degrees north
+R0 = rotation(np.array([0.35, -0.25, 0.1]))  # a first pose that is not axis-aligned
+
+
+@dataclass
+class EarthSession:
+    rec: Recording
+    poses: list[F64]  # body-to-world rotation of each still pose
+    earth: F64  # Earth's rotation in the world frame (rad/s)
+    north: F64  # unit north in the world frame
+
+
+def earth_session(
+    seed: int,
+    moves: list[tuple[tuple[float, float, float], float]],
+    north_deg: float,
+    *,
+    fs: float = 200.0,
+    still_s: float = 5.0,
+    move_s: float = 2.0,
+    g_sensitivity: F64 | None = None,
+) -> EarthSession:
+    """`session`'s motions (smooth body-axis turns between still poses, starting in R0) on a
+    level table at latitude LAT whose north is north_deg from world +y towards +x (east). The
+    gyro measures rotation against the stars: w + R^T e, e = Omega (cos(lat) north +
+    sin(lat) up). g_sensitivity (rad/s per m/s^2) adds a bias proportional to the specific
+    force, as MEMS gyros have."""
+    rng = np.random.default_rng(seed)
+    r = R0
+    n_move, n_still = round(move_s * fs), round(still_s * fs)
+    rots, rates, poses = [], [], []
+    for k in range(len(moves) + 1):
+        rots.append(np.repeat(r[None], n_still, axis=0))
+        rates.append(np.zeros((n_still, 3)))
+        poses.append(r)
+        if k == len(moves):
+            break
+        axis = np.asarray(moves[k][0]) / np.linalg.norm(moves[k][0])
+        angle = moves[k][1]
+        s = (1 - np.cos(np.pi * np.arange(n_move + 1) / n_move)) / 2
+        rots.append(r[None] @ rotation(axis[None] * (angle * s[:-1])[:, None]))
+        rates.append(np.diff(s)[:, None] * fs * angle * axis[None])
+        r = r @ rotation(axis * angle)
+    rot, w = np.concatenate(rots), np.concatenate(rates)
+    n = w.shape[0]
+    lat, az = np.radians(LAT), np.radians(north_deg)
+    north = np.array([np.sin(az), np.cos(az), 0.0])
+    earth = OMEGA * (np.cos(lat) * north + np.sin(lat) * np.array([0.0, 0.0, 1.0]))
+    f = np.einsum("nji,j->ni", rot, np.array([0.0, 0.0, G]))  # R^T (g up)
+    inertial = w + np.einsum("nji,j->ni", rot, earth)
+    gyro = inertial @ A_G.T + B_G + rng.normal(0.0, N * np.sqrt(fs), (n, 3))
+    if g_sensitivity is not None:
+        gyro += f @ g_sensitivity.T
+    accel = f + rng.normal(0.0, 4e-3 * np.sqrt(fs), (n, 3))
+    t_ns = np.round(np.arange(n) * 1e9 / fs).astype(np.int64)
+    rec = Recording(t_ns, accel, gyro, None, None, None, "synthetic, on the turning Earth")
+    return EarthSession(rec, poses, earth, north)
+
+
+def heading_of(axis: str, first_pose: F64, north: F64) -> float:
+    """Compass heading (degrees east of north) of a body axis in the first pose."""
+    a = first_pose[:, "xyz".index(axis)]
+    east = np.cross(north, [0.0, 0.0, 1.0])
+    return float(np.degrees(np.arctan2(a @ east, a @ north)) % 360.0)
+
+
+def pose_heading_bound(s: EarthSession, found_s: list[float]) -> float:
+    """The heading's Cramer-Rao sigma (degrees) from the still poses' gyro means alone (C known,
+    b free): mean_k = b + A_g R_k^T e(psi), each of noise N^2 / T_k per axis. The fit also has
+    the motions, so its sigma is at most this."""
+    lat = np.radians(LAT)
+    d_earth = OMEGA * np.cos(lat) * np.cross([0.0, 0.0, 1.0], s.north)  # de/dpsi: towards west
+    info = np.zeros((4, 4))
+    for pose, seconds in zip(s.poses, found_s, strict=True):
+        jac = np.column_stack([np.eye(3), A_G @ pose.T @ d_earth])
+        info += jac.T @ jac * seconds / N**2
+    return float(np.degrees(np.sqrt(np.linalg.inv(info)[3, 3])))
+
+
+def test_earth_rotation_fitted_with_the_latitude() -> None:
+    """Five headings: C and b within their sigma, the bias the sensor's own (the poses' means
+    differ by Earth's rotation seen from each pose), the heading found."""
+    rng = np.random.default_rng(60)
+    z: list[float] = []
+    for trial in range(5):
+        north = float(rng.uniform(0.0, 360.0))
+        s = earth_session(60 + trial, MOVES, north)
+        found = find_still(s.rec)
+        assert len(found) == len(s.poses)
+        est = fit_gyro_full(s.rec, found, None, latitude_deg=LAT)
+        assert est.verdict.accepted, est.verdict.reasons
+        assert est.fit.names == (*[f"C_{a}{b}" for a in "xyz" for b in "xyz"], "b_x", "b_y", "b_z")
+        zs = (est.fit.values - np.append(C_TRUE.ravel(), B_G)) / est.fit.sigma()
+        assert np.all(np.abs(zs) < 4), zs
+        z.extend(zs)
+        earth = est.fit.details["earth"]
+        assert earth["heading_of"].startswith("body x axis")  # x lies near level in R0
+        truth = heading_of("x", R0, s.north)
+        off = (earth["heading_deg"] - truth + 180.0) % 360.0 - 180.0
+        assert abs(off) < 4 * earth["heading_sigma_deg"], (off, earth)
+        bound = pose_heading_bound(s, [iv.duration_s for iv in found])
+        assert 0.7 * bound < earth["heading_sigma_deg"] <= 1.05 * bound, (bound, earth)
+        # the same data without the latitude: the bias holds the poses' mean Earth rate
+        flat = fit_gyro_full(s.rec, found, None)
+        inside = np.mean([A_G @ p.T @ s.earth for p in s.poses], axis=0)
+        assert np.all(np.abs(flat.bias - B_G - inside) < 4 * flat.fit.sigma()[9:])
+    assert 0.65 < np.std(z) < 1.4
+
+
+def test_with_the_latitude_a_given_bias_is_held() -> None:
+    s = earth_session(70, MOVES, 120.0)
+    est = fit_gyro_full(s.rec, None, B_G, latitude_deg=LAT)
+    assert est.verdict.accepted, est.verdict.reasons
+    assert np.array_equal(est.bias, B_G) and np.all(est.fit.sigma()[9:] == 0)
+    zs = (est.matrix - C_TRUE).ravel() / est.fit.sigma()[:9]
+    assert np.all(np.abs(zs) < 4), zs
+    assert est.fit.details["earth"]["bias_from"] == "given, held fixed"
+
+
+def test_with_the_latitude_poses_that_disagree_are_refused_by_name() -> None:
+    """A gyro whose bias moves with gravity (0.01 deg/s/g: a tenth of an MPU6050's): its still
+    poses' means differ by more than Earth's rotation explains."""
+    g_sens = np.radians(0.01) / G * np.array([[0.5, -0.3, 0.2], [0.1, 0.8, -0.4], [0.2, 0.3, 0.6]])
+    s = earth_session(71, MOVES, 40.0, g_sensitivity=g_sens)
+    est = fit_gyro_full(s.rec, None, None, latitude_deg=LAT)
+    assert not est.verdict.accepted
+    assert "still poses' gyro means differ" in est.verdict.reasons[0]
+    assert "g-sensitivity" in est.verdict.reasons[0]
+
+
+def test_bias_with_the_latitude_removes_the_vertical_part_only() -> None:
+    """A still minute in the tilted first pose: the vertical part of Earth's rotation along the
+    measured up is subtracted, the horizontal part (its direction needs the heading) stays."""
+    s = earth_session(72, [], 75.0, still_s=120.0)
+    up = R0.T @ np.array([0.0, 0.0, 1.0])
+    vertical = OMEGA * np.sin(np.radians(LAT)) * up
+    plain = fit_gyro_bias(s.rec)
+    est = fit_gyro_bias(s.rec, latitude_deg=LAT)
+    assert plain.verdict.accepted and est.verdict.accepted, est.verdict.reasons
+    sigma = est.fit.sigma()
+    assert sigma == pytest.approx(np.full(3, N / np.sqrt(120.0)), rel=0.2)
+    inside = A_G @ R0.T @ s.earth  # what a still gyro reads of Earth's rotation
+    assert np.all(np.abs(plain.bias - B_G - inside) < 4 * sigma)
+    assert np.all(np.abs(est.bias - B_G - (inside - vertical)) < 4 * sigma)
+    assert np.max(np.abs(est.bias - plain.bias) / sigma) > 4  # the part removed is real
+    details = est.fit.details
+    assert details["earth_removed_rad_s"] == pytest.approx(vertical, abs=1e-8)
+    assert details["earth_remaining_rad_s"] == pytest.approx(OMEGA * np.cos(np.radians(LAT)))
+    assert "horizontal part" in details["earth_rate_note"]
+
+
+@pytest.mark.parametrize("latitude", [91.0, -90.5, float("nan")])
+def test_a_latitude_must_be_one(latitude: float) -> None:
+    rec = still_recording(2.0, seed=73)
+    with pytest.raises(ValueError, match="between -90 and 90"):
+        fit_gyro_bias(rec, latitude_deg=latitude)

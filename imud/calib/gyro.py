@@ -3,10 +3,15 @@ poses (corrected = C (raw - b)).
 
 Bias. The mean of a still recording, with its standard error from the data's own noise (block
 averaging, imud/calib/still.py), so coloured noise and slow drift widen the error bar instead of
-hiding in it. Earth's rotation (7.292115e-5 rad/s, 15 deg/h) is inside any still bias: a gyro at
-rest measures its projection on the sensor axes, which depends on latitude and heading. It is
-not subtracted here (neither is known); `details["earth_rate_rad_s"]` reports its size beside
-the bias's standard error so a person can see whether it matters at their noise level.
+hiding in it. Earth's rotation (7.292115e-5 rad/s, 15 deg/h) is inside any still mean: a gyro at
+rest measures its projection on the sensor axes, which depends on latitude and heading. Without
+the latitude nothing is subtracted; `details["earth_rate_rad_s"]` reports its size beside the
+bias's standard error so a person can see whether it matters at their noise level. With the
+latitude, its vertical part, Omega sin(latitude) along the measured "up" (the accelerometer reads
++g upward at rest; Earth's rotation points north and up in the northern hemisphere), is known and
+subtracted; its horizontal part, Omega cos(latitude) towards north, cannot be told from the bias
+in one pose (the heading is unknown) and stays in it: details say what was removed and what is
+left. Only a session with several poses separates it (below).
 
 Scale and misalignment (imu_tk's method, with uncertainty). Between two still poses the sensor is
 turned by hand or by a table; the accelerometer gives gravity's direction in the body frame
@@ -31,15 +36,38 @@ starting pose was a whole number of turns (a turntable, a Ferraris session), whi
 residual log(R) = 0 (the integrated angle is 2 pi k, k the nearest whole number) for those
 motions and fixes that scale.
 
-Uncorrected effects, worth knowing: Earth's rotation while the sensor turns (the still bias holds
-its projection in the starting pose only: ~7e-5 rad/s times the motion's duration), and
-g-sensitivity of the gyro; both are far below the hand-placement noise of a typical session.
+Earth's rotation in the full fit (latitude_deg given). The gyro measures rotation against the
+stars: b + C^-1 (w + R(t)^T e), w the rate against the table, e Earth's rotation in a frame
+fixed to the first still pose, R(t) the body's orientation in that frame. Two places feel it.
+A motion of T seconds integrates to the rotation against the stars, Q; against the table it is
+exp(-[R_k^T e] T) Q, R_k the pose it started from (exactly: the table turned by e T under it
+meanwhile), which at MEMS grade is several times a turn's noise (7e-5 rad/s over a 6 s whole
+turn: 4e-4 rad). And each still pose's gyro mean is b + C^-1 R_k^T e, a different vector in
+each pose. With the latitude, e = Omega sin(lat) up + Omega cos(lat) north: up is the first
+pose's gravity direction, north is unknown by one angle (the heading), which becomes one more
+parameter. The fit is then joint over C, b and the heading: the motions' rows as above, plus
+the still poses' gyro means as rows of their own (weighted by their block-averaged covariance),
+so the bias is the sensor's own, not bias plus Earth rate; R_k are chained from the integrated
+motions (their noise moves R_k^T e by ~1e-7 rad/s, nothing). The heading is started from a
+grid after a fit without Earth (the cost on the heading circle can have two minima) and is
+reported (degrees east of north of a body axis lying level in the first pose) with its sigma;
+the parameters written (C, b) keep their names and their covariance is the joint one with the
+heading marginalised out. Without the latitude, Earth's rotation is left out, as imu_tk and
+imucal do: estimating its full vector (three more parameters) from MEMS-grade still poses of a
+few seconds gives each component to about a third of its size, so it would cost more variance
+in b and C than the bias it removes; its size against the noise is reported, and a refusal
+names it when it is the likely cause.
+
+Uncorrected effects, worth knowing: g-sensitivity of the gyro (a bias that depends on the
+gravity direction; with the latitude the still poses' means are tested against each other, so
+a strong one is refused, named), and a bias drifting between poses.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -70,7 +98,13 @@ BIAS_NAMES = ("b_x", "b_y", "b_z")
 C_NAMES = tuple(f"C_{AXES[i]}{AXES[j]}" for i in range(3) for j in range(3))
 
 
-def fit_gyro_bias(rec: Recording) -> AffineEstimate:
+def _latitude_rad(latitude_deg: float) -> float:
+    if not math.isfinite(latitude_deg) or abs(latitude_deg) > 90.0:
+        raise ValueError(f"latitude {latitude_deg} deg is not between -90 and 90")
+    return math.radians(latitude_deg)
+
+
+def fit_gyro_bias(rec: Recording, latitude_deg: float | None = None) -> AffineEstimate:
     """The gyro bias (procedure "gyro-bias", matrix identity) from a still recording.
 
     Its covariance is that of the mean from the data's own noise (block averaging). Residuals:
@@ -78,8 +112,10 @@ def fit_gyro_bias(rec: Recording) -> AffineEstimate:
     that covariance predicts (drift or a step shows up there), and the noise density
     N = se * sqrt(T) (rad/s/sqrt(Hz), Allan N convention: a T-second mean has sigma N / sqrt(T)).
     Rejected when the recording is not still (and when it moved), when the temperature changed
-    by more than 0.2 degC, or when a sample hit full scale. Earth's rotation is inside the bias:
-    see the module docstring."""
+    by more than 0.2 degC, or when a sample hit full scale. Earth's rotation is inside the bias;
+    with latitude_deg its vertical part (Omega sin(latitude) along the measured up) is removed,
+    its horizontal part stays (details "earth_removed_rad_s", "earth_remaining_rad_s"; see the
+    module docstring)."""
     if rec.n < 2:
         raise CalibrationRefused(f"{rec.source or 'the recording'} has no samples")
     duration = float(rec.t_ns[-1] - rec.t_ns[0]) * 1e-9
@@ -129,17 +165,44 @@ def fit_gyro_bias(rec: Recording) -> AffineEstimate:
         ok = False
         reasons.append("samples hit full scale: this is not a still recording; record again")
     earth_vs_se = EARTH_RATE_RAD_S / float(np.max(se))
-    details: dict[str, Any] = {
-        "duration_s": duration,
-        "noise_density": density.tolist(),
-        "white_noise_density": white.tolist(),
-        "segments": segments,
+    earth: dict[str, Any] = {
         "earth_rate_rad_s": EARTH_RATE_RAD_S,
         "earth_rate_over_sigma": earth_vs_se,
         "earth_rate_note": (
             f"Earth's rotation ({EARTH_RATE_RAD_S:.3e} rad/s) is inside this bias, up to "
             f"{earth_vs_se:.1f} times its standard error, depending on latitude and heading"
         ),
+    }
+    if latitude_deg is not None:
+        # the vertical part along the measured up (the raw accelerometer's: its misalignment of
+        # a degree or two moves this vector by ~1e-6 rad/s, far below the bias's error)
+        lat = _latitude_rad(latitude_deg)
+        up = whole.accel / float(np.linalg.norm(whole.accel))
+        removed = EARTH_RATE_RAD_S * math.sin(lat) * up
+        bias = bias - removed
+        left = EARTH_RATE_RAD_S * abs(math.cos(lat))
+        earth.update(
+            {
+                "latitude_deg": latitude_deg,
+                "earth_removed_rad_s": removed.tolist(),
+                "earth_remaining_rad_s": left,
+                "earth_remaining_over_sigma": left / float(np.max(se)),
+                "earth_rate_note": (
+                    f"Earth's rotation: its vertical part at latitude {latitude_deg:g} deg "
+                    f"({EARTH_RATE_RAD_S * math.sin(lat):.3e} rad/s along the measured up) is "
+                    f"removed; its horizontal part ({left:.3e} rad/s, up to "
+                    f"{left / float(np.max(se)):.1f} times the bias's standard error, towards "
+                    "north, a direction this still recording cannot tell) stays in this bias: "
+                    "a gyro-full session with the latitude separates it"
+                ),
+            }
+        )
+    details: dict[str, Any] = {
+        "duration_s": duration,
+        "noise_density": density.tolist(),
+        "white_noise_density": white.tolist(),
+        "segments": segments,
+        **earth,
         "moved_s": [list(s) for s in check.moved],
         "temp_change_c": whole.temp_change_c,
     }
@@ -397,58 +460,158 @@ def _bias_of(bias: AffineEstimate | F64 | None, intervals: list[StillInterval]) 
 
 
 @dataclass(frozen=True)
+class _Earth:
+    """Earth's rotation in the frame of the first still pose: e(psi) = vertical up +
+    horizontal (cos psi n1 + sin psi n2), psi the angle of north from n1 about up."""
+
+    up: F64
+    n1: F64
+    n2: F64
+    vertical: float  # Omega sin(latitude)
+    horizontal: float  # Omega cos(latitude)
+
+    @classmethod
+    def at_latitude(cls, up: F64, latitude_deg: float) -> _Earth:
+        lat = _latitude_rad(latitude_deg)
+        n1, n2 = _basis(up)
+        return cls(up, n1, n2, EARTH_RATE_RAD_S * math.sin(lat), EARTH_RATE_RAD_S * math.cos(lat))
+
+    def vector(self, psi: float) -> tuple[F64, F64, F64]:
+        """e, de/dpsi and d2e/dpsi2 (minus the horizontal part)."""
+        c, s = math.cos(psi), math.sin(psi)
+        horizontal = self.horizontal * (c * self.n1 + s * self.n2)
+        e = self.vertical * self.up + horizontal
+        return e, self.horizontal * (c * self.n2 - s * self.n1), -horizontal
+
+    def north(self, psi: float) -> F64:
+        out: F64 = math.cos(psi) * self.n1 + math.sin(psi) * self.n2
+        return out
+
+    def heading(self, psi: float) -> tuple[str, float]:
+        """The compass heading (degrees east of north) of the first body axis (x, y, z in turn)
+        that lies within 45 deg of level in the first pose: what psi means to a person."""
+        k = next((i for i in range(3) if abs(float(self.up[i])) < math.sqrt(0.5)), 0)
+        axis = np.eye(3)[k] - float(self.up[k]) * self.up
+        north = self.north(psi)
+        east = np.cross(north, self.up)
+        deg = math.degrees(math.atan2(float(axis @ east), float(axis @ north))) % 360.0
+        return AXES[k], deg
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """What the fit holds fixed: the motion samples, gravity directions and still poses."""
+
+    raw: F64  # (M, 3) raw gyro of the motion samples
+    dt: F64  # (M,)
+    starts: F64  # motion s = samples starts[s] .. starts[s+1]-1
+    u: F64  # (P, 3) gravity directions of the poses
+    motions: list[_Motion]
+    durations: F64  # (S,) seconds each motion integrates over
+    full_turns: bool
+    means: F64 | None  # (P, 3) the poses' gyro means, as rows of their own (with the latitude)
+    earth: _Earth | None  # None: Earth's rotation left out
+
+
+@dataclass(frozen=True)
 class _Linearised:
     r: F64  # residuals
-    jac: F64  # d r / d vec(C)
+    jac: F64  # d r / d (vec C, b, heading), (R, 13)
+    d2_psi: F64  # d2 r / d heading2, (R,)
     d_u: F64  # d r / d (pose gravity directions), (R, 3 * poses)
     d_theta: F64  # d r / d (each motion's integrated rotation error), (R, 3 * motions)
-    d_b: F64  # d r / d bias, (R, 3)
+    d_m: F64  # d r / d (the poses' gyro means), (R, 3 * poses)
     it: _Integrated
+    poses: F64  # (P, 3, 3) each pose's orientation in the first pose's frame
 
 
-def _linearise(
-    c: F64,
-    w: F64,
-    dt: F64,
-    starts: F64,
-    u: F64,
-    motions: list[_Motion],
-    full_turns: bool,
-) -> _Linearised:
-    """Residuals and their derivatives. Gravity rows: B (R^T u_before - u_after), B two axes
-    perpendicular to u_after; a change dtheta of the end rotation moves R^T u by [p]x dtheta.
-    Turn rows (full_turns, motions back to their pose): log(R), moved by J_r^-1 dtheta."""
-    it = _integrate(c, w, dt, starts)
-    n_rows = sum(2 + (3 if full_turns and m.returns else 0) for m in motions)
+C_COLS = list(range(9))
+B_COLS = [9, 10, 11]
+PSI = 12
+
+
+def _linearise(prob: _Problem, x: F64, it: _Integrated | None = None) -> _Linearised:
+    """Residuals and their derivatives at x = (vec C, b, heading). Gravity rows:
+    B (R^T u_before - u_after), B two axes perpendicular to u_after, R the rotation against the
+    table: R = exp(-[R_k^T e] T) Q, Q the integrated one (against the stars); a change dtheta of
+    Q (on the right) moves R^T u by [p]x dtheta. Turn rows (full_turns, motions back to their
+    pose): log(R), moved by J_r^-1 dtheta. A heading change turns exp(-[phi]) on the right by
+    -J_r(-phi) dphi, i.e. Q by dtheta = -Q^T J_r(-phi) dphi. Pose rows (with the means): the
+    gyro mean minus b + C^-1 R_k^T e. R_k's own dependence on C and the heading is dropped from
+    the Jacobian (Earth's rate times an angle error: ~1e-7 rad/s)."""
+    c = x[:9].reshape(3, 3)
+    b = x[9:12]
+    if it is None:
+        it = _integrate(c, prob.raw - b, prob.dt, prob.starts)
+    u, motions = prob.u, prob.motions
+    n_poses = u.shape[0]
+    if prob.earth is None:
+        e, de, de2 = np.zeros(3), np.zeros(3), np.zeros(3)
+    else:
+        e, de, de2 = prob.earth.vector(float(x[PSI]))
+    des = np.column_stack([de, de2])  # the residuals are linear in e to first order
+    # the poses' orientations, chained through the motions (each joins pose k to k + 1)
+    poses = np.broadcast_to(np.eye(3), (n_poses, 3, 3)).copy()
+    rel = it.rot.copy()
+    d_psi = np.zeros((len(motions), 3, 2))
+    by_before = {m.before: s for s, m in enumerate(motions)}
+    for k in range(n_poses - 1):
+        s = by_before.get(k)
+        if s is None:
+            poses[k + 1] = poses[k]
+            continue
+        if prob.earth is not None:
+            t = float(prob.durations[s])
+            ex, jr = _exp_and_jr(-(poses[k].T @ e)[None] * t)
+            rel[s] = ex[0] @ it.rot[s]
+            d_psi[s] = -it.rot[s].T @ jr[0] @ (t * (poses[k].T @ des))
+        poses[k + 1] = poses[k] @ rel[s]
+    n_turn = sum(3 for m in motions if prob.full_turns and m.returns)
+    n_mean = 0 if prob.means is None else 3 * n_poses
+    n_rows = 2 * len(motions) + n_turn + n_mean
     r = np.zeros(n_rows)
-    jac = np.zeros((n_rows, 9))
-    d_u = np.zeros((n_rows, 3 * u.shape[0]))
+    jac = np.zeros((n_rows, 13))
+    d2_psi = np.zeros(n_rows)
+    d_u = np.zeros((n_rows, 3 * n_poses))
     d_theta = np.zeros((n_rows, 3 * len(motions)))
-    d_b = np.zeros((n_rows, 3))
+    d_m = np.zeros((n_rows, 3 * n_poses))
     row = 0
     for s, m in enumerate(motions):
-        rot, g, hc = it.rot[s], it.g[s], -it.h[s] @ c
+        rot, g, hc = rel[s], it.g[s], -it.h[s] @ c
         p = rot.T @ u[m.before]
         basis = _basis(u[m.after])
         bp = basis @ _skew(p)
         rows = slice(row, row + 2)
         r[rows] = basis @ (p - u[m.after])
-        jac[rows] = bp @ g
+        jac[rows, :9] = bp @ g
+        jac[rows, 9:12] = bp @ hc
+        jac[rows, PSI], d2_psi[rows] = (bp @ d_psi[s]).T
         d_u[rows, 3 * m.before : 3 * m.before + 3] += basis @ rot.T
         d_u[rows, 3 * m.after : 3 * m.after + 3] -= basis
         d_theta[rows, 3 * s : 3 * s + 3] = bp
-        d_b[rows] = bp @ hc
         row += 2
-        if full_turns and m.returns:
+        if prob.full_turns and m.returns:
             rho = _log(rot)
             jinv = _jr_inv(rho)
             rows = slice(row, row + 3)
             r[rows] = rho
-            jac[rows] = jinv @ g
+            jac[rows, :9] = jinv @ g
+            jac[rows, 9:12] = jinv @ hc
+            jac[rows, PSI], d2_psi[rows] = (jinv @ d_psi[s]).T
             d_theta[rows, 3 * s : 3 * s + 3] = jinv
-            d_b[rows] = jinv @ hc
             row += 3
-    return _Linearised(r, jac, d_u, d_theta, d_b, it)
+    if prob.means is not None:
+        c_inv = np.linalg.inv(c)
+        for k in range(n_poses):
+            y = c_inv @ (poses[k].T @ e)
+            rows = slice(row, row + 3)
+            r[rows] = prob.means[k] - b - y
+            jac[rows, :9] = np.kron(c_inv, y[None, :])  # d(-C^-1 z) = C^-1 dC C^-1 z
+            jac[rows, 9:12] = -np.eye(3)
+            jac[rows, PSI], d2_psi[rows] = (-c_inv @ (poses[k].T @ des)).T
+            d_m[rows, 3 * k : 3 * k + 3] = np.eye(3)
+            row += 3
+    return _Linearised(r, jac, d2_psi, d_u, d_theta, d_m, it, poses)
 
 
 def _block_diag(blocks: F64) -> F64:
@@ -486,23 +649,84 @@ def _unobservable(cov_c: F64) -> str | None:
     )
 
 
+@dataclass(frozen=True)
+class _Solved:
+    x: F64
+    lin: _Linearised
+    iterations: int
+
+
+def _solve(
+    lin_at: Callable[[F64], _Linearised],
+    weights: Callable[[_Linearised], F64],
+    x0: F64,
+    cols: list[int],
+) -> _Solved:
+    """Levenberg-Marquardt on the parameters `cols` of x (generalised least squares, weights
+    from the noise covariance at the current point). The heading gets Newton's full curvature:
+    it is an angle on a circle, weakly determined, and the residuals' own curvature along it
+    (Gauss-Newton leaves it out) is a good fraction of the information, which would make the
+    iteration converge only linearly."""
+    x = x0.copy()
+    lin = lin_at(x)
+    lam = 1e-3
+    iterations = 0
+    n = len(cols)
+    for iterations in range(1, 51):  # noqa: B007 (reported below)
+        vinv = weights(lin)
+        jac = lin.jac[:, cols]
+        cost = float(lin.r @ vinv @ lin.r)
+        info = jac.T @ vinv @ jac
+        grad = jac.T @ vinv @ lin.r
+        hess = info.copy()
+        if PSI in cols:
+            k = cols.index(PSI)
+            hess[k, k] += max(float(lin.d2_psi @ vinv @ lin.r), -0.5 * float(info[k, k]))
+        ridge = 1e-12 * float(np.trace(info)) * np.eye(n)
+        step = np.linalg.solve(hess + lam * np.diag(np.diag(hess)) + ridge, -grad)
+        x_trial = x.copy()
+        x_trial[cols] += step
+        trial = lin_at(x_trial)
+        cost2 = float(trial.r @ vinv @ trial.r)
+        if cost2 <= cost:
+            x, lin = x_trial, trial
+            lam = max(lam / 10.0, 1e-12)
+            # converged: the step is tiny against the parameters' uncertainty (its length in
+            # the information metric), whatever it does along an undetermined direction
+            if float(step @ info @ step) < 1e-6 or cost - cost2 < 1e-9 * (1.0 + cost):
+                break
+        else:
+            lam *= 10.0
+            # no step lowers the cost: at the minimum to numerical precision (a rejected step
+            # already negligible against the uncertainty, or damping that left none)
+            if float(step @ info @ step) < 1e-6 or lam > 1e8:
+                break
+    return _Solved(x, lin, iterations)
+
+
 def fit_gyro_full(
     rec: Recording,
     intervals: list[StillInterval] | None = None,
     bias: AffineEstimate | F64 | None = None,
     full_turns: bool = False,
     accel: AffineEstimate | None = None,
+    latitude_deg: float | None = None,
 ) -> AffineEstimate:
     """Gyro scale and misalignment (a general 3x3 C, procedure "gyro-full") from the rotations
-    between consecutive still poses, with the bias held fixed (see the module docstring).
+    between consecutive still poses (see the module docstring).
 
     intervals: the still poses (None: found in rec). bias: a gyro-bias estimate (its covariance
-    is carried into C's), a (3,) vector (taken as exact), or None (the still poses' combined gyro
-    mean). accel: an accelerometer calibration to correct the gravity directions with (without
-    one, the raw accelerometer's misalignment leaks into C; with one, C maps the gyro into the
+    is carried into C's), a (3,) vector (taken as exact), or None (from the still poses' gyro
+    means: their combined mean, or with latitude_deg fitted jointly with Earth's rotation). A
+    given bias is held fixed; it must be the sensor's own, without Earth's rotation in it, for a
+    fit with latitude_deg (a still capture's mean holds the horizontal part: leave bias None).
+    accel: an accelerometer calibration to correct the gravity directions with (without one,
+    the raw accelerometer's misalignment leaks into C; with one, C maps the gyro into the
     calibrated accelerometer's frame). full_turns: every motion that returned to its starting
-    pose was a whole number of turns. Raises CalibrationRefused when too few rotations were
-    found; otherwise the verdict says whether C may be used (named undetermined axes, chi2)."""
+    pose was a whole number of turns. latitude_deg: model Earth's rotation (one more parameter,
+    the heading, reported in details["earth"]); None leaves it out. Raises CalibrationRefused
+    when too few rotations were found; otherwise the verdict says whether C may be used (named
+    undetermined axes, chi2)."""
     if intervals is None:
         intervals = find_still(rec)
     intervals = sorted(intervals, key=lambda iv: iv.start)
@@ -513,6 +737,8 @@ def fit_gyro_full(
         )
     b, bias_cov = _bias_of(bias, intervals)
     u, cov_u = _gravity_directions(intervals, accel)
+    earth = None if latitude_deg is None else _Earth.at_latitude(u[0], latitude_deg)
+    free_bias = earth is not None and bias is None
     cos_same = math.cos(math.radians(SAME_POSE_DEG))
     motions = [
         _Motion(k, k + 1, a.end - 1, nxt.start, float(u[k] @ u[k + 1]) > cos_same)
@@ -524,7 +750,7 @@ def fit_gyro_full(
     lo = np.array([m.lo for m in motions])
     hi = np.array([m.hi for m in motions])
     sel = np.concatenate([np.arange(a, z) for a, z in zip(lo, hi, strict=True)])
-    w = rec.gyro[sel] - b
+    raw = rec.gyro[sel]
     dt = (rec.t_ns[sel + 1] - rec.t_ns[sel]).astype(np.float64) * 1e-9
     starts = np.concatenate([[0], np.cumsum(hi - lo)]).astype(np.float64)
     first = starts[:-1].astype(np.intp)
@@ -536,7 +762,7 @@ def fit_gyro_full(
         # a motion back to its pose is a whole turn when the raw gyro's net rotation is within
         # 45 deg of none: no plausible scale error turns a quarter turn about the vertical
         # into a whole one, so such motions stay ordinary (gravity-only) ones
-        rot0 = _integrate(np.eye(3), w, dt, starts).rot
+        rot0 = _integrate(np.eye(3), raw - b, dt, starts).rot
         whole = [
             m.returns and float(np.linalg.norm(_log(r))) < WHOLE_TURN_RAD
             for m, r in zip(motions, rot0, strict=True)
@@ -559,65 +785,115 @@ def fit_gyro_full(
     density = np.median([iv.gyro_se * math.sqrt(max(iv.duration_s, 1e-9)) for iv in intervals], 0)
     n2 = float(np.mean(density**2))  # angle random walk, isotropic, rad^2/s
     cov_theta = _block_diag(np.array([n2 * d * np.eye(3) for d in durations]))
+    means = None if earth is None else np.array([iv.gyro for iv in intervals])
+    cov_m = _block_diag(np.array([iv.gyro_cov for iv in intervals]))
+    prob = _Problem(raw, dt, starts, u, motions, durations, full_turns, means, earth)
 
-    def weights(lin: _Linearised) -> F64:
-        v = (
-            lin.d_u @ cov_u @ lin.d_u.T
-            + lin.d_theta @ cov_theta @ lin.d_theta.T
-            + lin.d_b @ bias_cov @ lin.d_b.T
-        )
-        out: F64 = np.asarray(np.linalg.inv(0.5 * (v + v.T)), dtype=np.float64)
+    def noise(lin: _Linearised) -> F64:
+        v = lin.d_u @ cov_u @ lin.d_u.T + lin.d_theta @ cov_theta @ lin.d_theta.T
+        if means is not None:
+            v += lin.d_m @ cov_m @ lin.d_m.T
+        if not free_bias:
+            d_b = lin.jac[:, B_COLS]
+            v += d_b @ bias_cov @ d_b.T
+        out: F64 = 0.5 * (v + v.T)
         return out
 
-    def lin_at(c: F64) -> _Linearised:
-        return _linearise(c, w, dt, starts, u, motions, full_turns)
+    def weights(lin: _Linearised) -> F64:
+        out: F64 = np.asarray(np.linalg.inv(noise(lin)), dtype=np.float64)
+        return out
 
-    c = np.eye(3)
-    lin = lin_at(c)
-    lam = 1e-3
-    iterations = 0
-    for iterations in range(1, 51):  # noqa: B007 (reported below)
-        vinv = weights(lin)
-        cost = float(lin.r @ vinv @ lin.r)
-        info = lin.jac.T @ vinv @ lin.jac
-        grad = lin.jac.T @ vinv @ lin.r
-        ridge = 1e-12 * float(np.trace(info)) * np.eye(9)
-        step = np.linalg.solve(info + lam * np.diag(np.diag(info)) + ridge, -grad)
-        trial = lin_at(c + step.reshape(3, 3))
-        cost2 = float(trial.r @ vinv @ trial.r)
-        if cost2 <= cost:
-            c, lin = c + step.reshape(3, 3), trial
-            lam = max(lam / 10.0, 1e-12)
-            # converged: the step is tiny against the parameters' uncertainty (its length in
-            # the information metric), whatever it does along an undetermined direction
-            if float(step @ info @ step) < 1e-6 or cost - cost2 < 1e-9 * (1.0 + cost):
-                break
-        else:
-            lam *= 10.0
-            if lam > 1e8:  # no step lowers the cost: at the minimum to numerical precision
-                break
+    x = np.concatenate([np.eye(3).ravel(), b, [0.0]])
+    cols = C_COLS + (B_COLS if free_bias else [])
+    if earth is None:
+        sol = _solve(lambda y: _linearise(prob, y), weights, x, cols)
+    else:
+        # without Earth first (C lands near its value), then the heading from a grid on the
+        # circle at that C and b (the cost there can have two minima), then all together
+        flat = replace(prob, earth=None)
+        sol = _solve(lambda y: _linearise(flat, y), weights, x, cols)
+        vinv = weights(sol.lin)
+        grid = np.radians(np.arange(0.0, 360.0, 10.0))
+        costs = []
+        for psi in grid:
+            y = sol.x.copy()
+            y[PSI] = psi
+            r = _linearise(prob, y, sol.lin.it).r
+            costs.append(float(r @ vinv @ r))
+        x = sol.x.copy()
+        x[PSI] = grid[int(np.argmin(costs))]
+        if earth.horizontal > 1e-12:  # at a pole Earth's rotation is vertical: no heading
+            cols = [*cols, PSI]
+        first_iterations = sol.iterations
+        sol = _solve(lambda y: _linearise(prob, y), weights, x, cols)
+        sol = replace(sol, iterations=sol.iterations + first_iterations)
+    x, lin, iterations = sol.x, sol.lin, sol.iterations
+    c, b = x[:9].reshape(3, 3).copy(), x[9:12].copy()
     vinv = weights(lin)
-    info = lin.jac.T @ vinv @ lin.jac
-    cov_c = np.asarray(np.linalg.inv(info + 1e-15 * float(np.trace(info)) * np.eye(9)), np.float64)
-    cross = -cov_c @ lin.jac.T @ vinv @ lin.d_b @ bias_cov
-    cov = np.block([[cov_c, cross], [cross.T, bias_cov]])
+    jac = lin.jac[:, cols]
+    info = jac.T @ vinv @ jac
+    cov_x = np.asarray(
+        np.linalg.inv(info + 1e-15 * float(np.trace(info)) * np.eye(len(cols))), np.float64
+    )
+    # the joint covariance of (vec C, b, heading): the fitted ones from the information, a fixed
+    # bias with its own covariance and its effect on the fitted ones
+    cov_all = np.zeros((13, 13))
+    cov_all[np.ix_(cols, cols)] = cov_x
+    if not free_bias:
+        cross = -cov_x @ jac.T @ vinv @ lin.jac[:, B_COLS] @ bias_cov
+        cov_all[np.ix_(cols, B_COLS)] = cross
+        cov_all[np.ix_(B_COLS, cols)] = cross.T
+        cov_all[np.ix_(B_COLS, B_COLS)] = bias_cov
+    cov = cov_all[:12, :12]
     cov = 0.5 * (cov + cov.T)
+    cov_c = cov_all[:9, :9]
     chi2 = float(lin.r @ vinv @ lin.r)
-    dof = lin.r.shape[0] - 9
+    dof = lin.r.shape[0] - len(cols)
     p_value = chi2_sf(chi2, dof) if dof > 0 else 1.0
+    # Earth's rotation against the noise: over the longest motion, and in a still pose's mean
+    longest = float(np.max(durations))
+    se_pose = float(np.min([np.sqrt(np.max(np.diag(iv.gyro_cov))) for iv in intervals]))
+    earth_turn = EARTH_RATE_RAD_S * math.sqrt(longest / n2) if n2 > 0 else math.inf
+    earth_pose = EARTH_RATE_RAD_S / se_pose if se_pose > 0 else math.inf
 
     reasons: list[str] = []
     weak = _unobservable(cov_c)
     if weak is not None:
         reasons.append(weak)
+    pose_part: tuple[float, int, float] | None = None
+    if means is not None:
+        # the still poses' means alone (their block of the noise, their rows' share of chi2)
+        n_mean = means.size
+        v_m = noise(lin)[-n_mean:, -n_mean:]
+        r_m = lin.r[-n_mean:]
+        chi2_m = float(r_m @ np.linalg.solve(v_m, r_m))
+        dof_m = n_mean - (4 if free_bias else 1)  # less the bias and heading they determine
+        pose_part = (chi2_m, dof_m, chi2_sf(chi2_m, dof_m) if dof_m > 0 else 1.0)
     if p_value < 0.01:
-        reasons.append(
-            f"the rotations disagree with gravity by {math.sqrt(chi2 / dof):.1f} times their "
-            f"noise (chi2 {chi2:.1f}, dof {dof}, p {p_value:.2g}): a pose moved, the sensor was "
-            "not still where it seemed, or samples were lost during a turn"
-            + (", or a turn was not whole" if full_turns else "")
-            + "; capture again"
-        )
+        poses_fail = pose_part is not None and pose_part[2] < 0.01
+        if pose_part is not None and poses_fail:
+            chi2_m, dof_m, _ = pose_part
+            reasons.append(
+                f"the still poses' gyro means differ by {math.sqrt(chi2_m / dof_m):.1f} times "
+                f"what Earth's rotation and their noise allow (chi2 {chi2_m:.1f} on {dof_m} dof): "
+                "the bias drifted between poses (let the sensor warm up), the gyro is sensitive "
+                "to gravity (g-sensitivity), or the latitude is wrong"
+            )
+        if not poses_fail or chi2 - (pose_part[0] if pose_part else 0.0) > 2 * dof:
+            earth_hint = (
+                f", or Earth's rotation (it integrates to {earth_turn:.1f} times the noise over "
+                "the longest rotation here: give the latitude, --latitude)"
+                if earth is None and earth_turn >= 1.0
+                else ""
+            )
+            reasons.append(
+                f"the rotations disagree with gravity by {math.sqrt(chi2 / dof):.1f} times their "
+                f"noise (chi2 {chi2:.1f}, dof {dof}, p {p_value:.2g}): a pose moved, the sensor "
+                "was not still where it seemed, or samples were lost during a turn"
+                + (", or a turn was not whole" if full_turns else "")
+                + earth_hint
+                + "; capture again"
+            )
     ok = not reasons
     if gaps:
         reasons.append(
@@ -627,7 +903,7 @@ def fit_gyro_full(
     it = lin.it
     motion_details = []
     for s, m in enumerate(motions):
-        p = it.rot[s].T @ u[m.before]
+        p = lin.poses[m.after].T @ lin.poses[m.before] @ u[m.before]
         turns = round(float(it.angle[s]) / (2 * math.pi)) if full_turns and m.returns else None
         motion_details.append(
             {
@@ -647,8 +923,31 @@ def fit_gyro_full(
         "full_turns": full_turns,
         "partial_turns_about_vertical": partial,
         "earth_rate_rad_s": EARTH_RATE_RAD_S,
+        "earth_over_turn_noise": earth_turn,
+        "earth_over_pose_noise": earth_pose,
         "information_eigenvalues": np.linalg.eigvalsh(info).tolist(),
     }
+    if earth is not None:
+        psi = float(x[PSI])
+        axis, heading = earth.heading(psi)
+        e_body = earth.vector(psi)[0]
+        fitted = PSI in cols
+        details["earth"] = {
+            "latitude_deg": latitude_deg,
+            "heading_deg": heading if fitted else None,
+            "heading_sigma_deg": (
+                math.degrees(math.sqrt(max(float(cov_all[PSI, PSI]), 0.0))) if fitted else None
+            ),
+            "heading_of": f"body {axis} axis in the first still pose, degrees east of north",
+            "rate_first_pose_rad_s": e_body.tolist(),
+            "vertical_rad_s": earth.vertical,
+            "horizontal_rad_s": earth.horizontal,
+            "bias_from": "fitted with Earth's rotation" if free_bias else "given, held fixed",
+            "pose_means_chi2": None if pose_part is None else pose_part[0],
+            "pose_means_dof": None if pose_part is None else pose_part[1],
+            # the heading's (rad) covariance with the written parameters, in Fit.names order
+            "heading_cross_covariance": cov_all[PSI, :12].tolist(),
+        }
     fit = Fit(
         (*C_NAMES, *BIAS_NAMES),
         np.concatenate([c.ravel(), b]),
