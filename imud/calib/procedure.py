@@ -219,10 +219,12 @@ def run_gyro(
     full_turns: bool,
     cf: CalibrationFile | None = None,
     min_still_s: float = 2.0,
+    latitude_deg: float | None = None,
 ) -> Outcome:
     """A still recording gives the bias; one with rotations between still poses gives the bias
     (from the poses) and the full matrix. The file's accelerometer calibration, when there is
-    one, corrects the gravity directions first, so the gyro lands in the calibrated frame."""
+    one, corrects the gravity directions first, so the gyro lands in the calibrated frame.
+    With the latitude, Earth's rotation is modelled (imud/calib/gyro.py)."""
     from imud.calib.gyro import fit_gyro_bias, fit_gyro_full
     from imud.calib.still import check_still, find_still
 
@@ -233,11 +235,24 @@ def run_gyro(
         rec = replace(rec, accel=(rec.accel - a.bias) @ a.matrix.T)
         notes.append("accelerometer calibration from the file applied to the gravity directions")
     if check_still(rec).still:
-        est = fit_gyro_bias(rec)
+        est = fit_gyro_bias(rec, latitude_deg)
     else:
-        est = fit_gyro_full(rec, find_still(rec, min_still_s), None, full_turns)
+        if cf is None or cf.accel is None:
+            notes.append(
+                "no accelerometer calibration in the file: the raw accelerometer's scale and "
+                "misalignment enter the gravity directions the rotations are checked against "
+                "(calibrate accel first, into the same file)"
+            )
+        est = fit_gyro_full(
+            rec, find_still(rec, min_still_s), None, full_turns, latitude_deg=latitude_deg
+        )
     report = affine_report(est)
     report["notes"] = notes
+    d = est.fit.details
+    keys = ("earth_rate_note", "earth", "earth_removed_rad_s", "earth_remaining_rad_s")
+    earth = {k: d[k] for k in keys if k in d}
+    if earth:
+        report["earth_rotation"] = earth
     return Outcome(
         "gyro", est.verdict.accepted, list(est.verdict.reasons), report, _affine_update(est)
     )

@@ -256,7 +256,7 @@ class Job:
             **outcome.report,
             "accepted": outcome.accepted,
             "reasons": outcome.reasons,
-            "notes": notes,
+            "notes": [*outcome.report.get("notes", []), *notes],
         }
         if gravity_note:
             report["gravity_source"] = gravity_note
@@ -396,7 +396,13 @@ def accel(
     "(a turntable or Ferraris session): gives the scale about the vertical too",
 )
 @_min_still
-def gyro(full_turns: bool, min_still: float, **opts: Any) -> None:
+@click.option(
+    "--latitude",
+    type=click.FloatRange(-90.0, 90.0),
+    help="degrees north: model Earth's rotation (15 deg/h), which MEMS-grade turns and still "
+    "poses can resolve",
+)
+def gyro(full_turns: bool, min_still: float, latitude: float | None, **opts: Any) -> None:
     """Gyro bias from still data (its standard error from the data's own noise); with rotations
     between still poses, also scale and misalignment."""
     from imud.calib.procedure import run_gyro
@@ -409,7 +415,7 @@ def gyro(full_turns: bool, min_still: float, **opts: Any) -> None:
     rec, notes = _prepared(job, rec)
     cf = job.existing() if job.out is not None else None
     try:
-        outcome = run_gyro(rec, full_turns, cf, min_still)
+        outcome = run_gyro(rec, full_turns, cf, min_still, latitude)
     except CalibrationRefused as e:
         _refused(e, job.as_json)
     job.finish(outcome, None, notes, rec.source)

@@ -77,6 +77,16 @@ def show(report: dict[str, Any], console: Console | None = None) -> None:
         if mm:
             b = ", ".join(f"{x * 1e6:+.3g}" for x in mm["bias"])
             con.print(f"  seed min/max (for comparison): hard iron [{b}] uT")
+        earth = r.get("earth_rotation")
+        if earth:
+            if earth.get("earth_rate_note"):
+                con.print(f"  {earth['earth_rate_note']}")
+            e = earth.get("earth")
+            if isinstance(e, dict) and "heading_deg" in e:
+                con.print(
+                    f"  Earth's rotation modelled: heading {e['heading_deg']:.1f} +- "
+                    f"{e.get('heading_sigma_deg', float('nan')):.1f} deg"
+                )
         poses = [p for p in r.get("poses", []) if isinstance(p, dict) and "residual" in p]
         if poses:
             con.print("  per pose: start s, held s, residual |C(m-b)| - g (its sigma), mm/s^2")
