@@ -916,6 +916,7 @@ def fit_gyro_full(
             }
         )
     details: dict[str, Any] = {
+        "undetermined": weak,  # None, or which combination of C the rotations leave open
         "motions": motion_details,
         "residual_unit": "rad",
         "iterations": iterations,

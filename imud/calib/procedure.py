@@ -214,6 +214,42 @@ def local_gravity(
     )
 
 
+def _gravity_corrected(rec: Recording, cf: CalibrationFile | None, notes: list[str]) -> Recording:
+    """The recording with the file's accelerometer calibration applied (bias and matrix only:
+    its temperature term, if any, was applied by `compensate`), when there is one."""
+    if cf is None or cf.accel is None:
+        return rec
+    a = sensor_model(cf.accel)
+    notes.append("accelerometer calibration from the file applied to the gravity directions")
+    return replace(rec, accel=(rec.accel - a.bias) @ a.matrix.T)
+
+
+def gyro_needs_more(
+    rec: Recording,
+    full_turns: bool,
+    cf: CalibrationFile | None = None,
+    min_still_s: float = 2.0,
+    latitude_deg: float | None = None,
+) -> str | None:
+    """For a live capture: what more the gyro fit needs before it can be formed and every part
+    of C determined (None: nothing, or the sensor has been still all along, which is a bias
+    capture). A capture on a bench goes on until then."""
+    from imud.calib.gyro import fit_gyro_full
+    from imud.calib.still import CalibrationRefused, check_still, find_still
+
+    rec = _gravity_corrected(rec, cf, [])
+    try:
+        if check_still(rec).still:
+            return None
+        est = fit_gyro_full(
+            rec, find_still(rec, min_still_s), None, full_turns, latitude_deg=latitude_deg
+        )
+    except CalibrationRefused as e:
+        return str(e)
+    weak = est.fit.details.get("undetermined")
+    return str(weak) if weak else None
+
+
 def run_gyro(
     rec: Recording,
     full_turns: bool,
@@ -229,11 +265,7 @@ def run_gyro(
     from imud.calib.still import check_still, find_still
 
     notes: list[str] = []
-    if cf is not None and cf.accel is not None:
-        # bias and matrix only: its temperature term, if any, was applied by `compensate`
-        a = sensor_model(cf.accel)
-        rec = replace(rec, accel=(rec.accel - a.bias) @ a.matrix.T)
-        notes.append("accelerometer calibration from the file applied to the gravity directions")
+    rec = _gravity_corrected(rec, cf, notes)
     if check_still(rec).still:
         est = fit_gyro_bias(rec, latitude_deg)
     else:

@@ -405,13 +405,18 @@ def accel(
 def gyro(full_turns: bool, min_still: float, latitude: float | None, **opts: Any) -> None:
     """Gyro bias from still data (its standard error from the data's own noise); with rotations
     between still poses, also scale and misalignment."""
-    from imud.calib.procedure import run_gyro
+    from imud.calib.procedure import gyro_needs_more, run_gyro
     from imud.calib.still import CalibrationRefused
 
     job = Job("gyro", opts)
     from imud.cli.calibrate_live import capture_for
 
-    rec = job.recording(lambda j: capture_for(j, 30.0))
+    def more(r: Any) -> str | None:
+        """Live, after 30 s: what the full fit still needs (the file's accel applied)."""
+        cf = job.existing() if job.out is not None else None
+        return gyro_needs_more(r, full_turns, cf, min_still, latitude)
+
+    rec = job.recording(lambda j: capture_for(j, 30.0, more=more))
     rec, notes = _prepared(job, rec)
     cf = job.existing() if job.out is not None else None
     try:

@@ -24,6 +24,8 @@ from imud.status import DeviceState
 F64 = npt.NDArray[np.float64]
 _SAT_MASK = sum(int(f) for f in SATURATED.values())
 UPDATE_S = 1.0
+MORE_EVERY_S = 3.0  # how often an extended capture asks its fit what more it needs
+MAX_EXTEND_S = 600.0  # the longest an extended capture goes on
 
 
 class Buffer:
@@ -190,14 +192,22 @@ def capture_poses(
 
 
 def capture_for(
-    job: Any, default_s: float, need_mag: bool = False, show_temperature: bool = False
+    job: Any,
+    default_s: float,
+    need_mag: bool = False,
+    show_temperature: bool = False,
+    more: Callable[[Recording], str | None] | None = None,
 ) -> Recording:
     """Capture for --duration (or `default_s`) seconds; for the magnetometer, stop as soon as
     the field has been seen from enough directions; for a temperature fit, show the span so far
-    (each polynomial order needs 5 degC more of it)."""
+    (each polynomial order needs 5 degC more of it). `more(recording)`: after `default_s`
+    (when --duration was not given), go on while it says what the fit still needs, up to
+    MAX_EXTEND_S (a gyro on a bench: until rotations about every axis were seen)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-    limit = job.o["duration"] or default_s
+    given = job.o["duration"]
+    limit = given or default_s
+    extendable = more is not None and not given
     buf = Buffer(f"live {job.device_name}")
     s, it = _stream(job)
     con = _console(job)
@@ -211,7 +221,18 @@ def capture_for(
             now = time.monotonic()
             prog.update(task, completed=min(now - start, limit))
             if now - start >= limit:
-                break
+                if not extendable or now - start >= MAX_EXTEND_S:
+                    break
+                if now - last < MORE_EVERY_S:
+                    continue
+                last = now
+                assert more is not None
+                why = more(buf.recording())
+                if why is None:
+                    break
+                limit = min(MAX_EXTEND_S, now - start + MORE_EVERY_S)
+                prog.update(task, total=MAX_EXTEND_S, description=f"still needed: {why}")
+                continue
             if need_mag and now - last >= UPDATE_S and buf.n > 100:
                 last = now
                 frac = _mag_coverage(buf.recording())
