@@ -202,3 +202,13 @@ def test_plot_draws_a_png(recording: tuple[Path, float], tmp_path: Path) -> None
     assert r.returncode == 0, r.stderr
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "not written (--dry-run)" in r.stdout
+
+
+def test_gyro_plot_shows_each_rotation(recording: tuple[Path, float], tmp_path: Path) -> None:
+    png = tmp_path / "gyro.png"
+    r = imud("calibrate", "gyro", "--from", str(recording[0]), "--dry-run", "--plot", str(png))
+    assert r.returncode in (0, 3), r.stderr  # the plot is drawn whatever the verdict
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the twelve poses' eleven rotations, each with the angle it turned and its gravity miss
+    assert "per rotation: poses, duration s, angle deg, gravity miss deg" in r.stdout
+    assert " 1 ->  2" in r.stdout and "11 -> 12" in r.stdout

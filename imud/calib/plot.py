@@ -2,7 +2,8 @@
 
 accel: each pose's residual (|C (m - b)| - g) with its 1-sigma bar; mag: the field cloud before
 and after correction against the fitted sphere; temp: each axis's reading against temperature
-with the fitted polynomial; gyro: the bias with its uncertainty. Needs matplotlib (the `plot`
+with the fitted polynomial; gyro: the bias with its uncertainty and, for a full fit, how far each
+rotation's predicted gravity direction landed from the measured one. Needs matplotlib (the `plot`
 extra); imported only when asked for.
 """
 
@@ -58,8 +59,9 @@ def draw(kind: str, outcome: Any, path: Path) -> None:
                 ax.set_title(f"{est.sensor} {'xyz'[axis]} (order {est.order})")
                 ax.set_xlabel("degC")
     else:
-        ax = fig.add_subplot(1, 1, 1)
         rep = outcome.report
+        motions = rep.get("motions") or []
+        ax = fig.add_subplot(1, 2 if motions else 1, 1)
         b = np.array(rep["bias"])
         sig = np.array(
             [rep["parameters"].get(n, {"sigma": 0.0})["sigma"] for n in ("b_x", "b_y", "b_z")]
@@ -67,6 +69,14 @@ def draw(kind: str, outcome: Any, path: Path) -> None:
         ax.bar(["x", "y", "z"], np.degrees(b) * 3600, yerr=np.degrees(sig) * 3600)
         ax.set_ylabel("bias [deg/h]")
         ax.set_title("gyro bias (1 sigma)")
+        if motions:
+            ax = fig.add_subplot(1, 2, 2)
+            labels = [f"{m['from_pose']}-{m['to_pose']}" for m in motions]
+            ax.bar(labels, [m["residual_deg"] for m in motions])
+            ax.set_xlabel("motion (from pose - to pose)")
+            ax.set_ylabel("gravity after, predicted - measured [deg]")
+            ax.set_title("gyro: each rotation against gravity")
+            ax.tick_params(axis="x", rotation=90)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

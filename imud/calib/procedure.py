@@ -285,6 +285,8 @@ def run_gyro(
     earth = {k: d[k] for k in keys if k in d}
     if earth:
         report["earth_rotation"] = earth
+    if d.get("motions"):
+        report["motions"] = d["motions"]
     return Outcome(
         "gyro", est.verdict.accepted, list(est.verdict.reasons), report, _affine_update(est)
     )

@@ -87,6 +87,14 @@ def show(report: dict[str, Any], console: Console | None = None) -> None:
                     f"  Earth's rotation modelled: heading {e['heading_deg']:.1f} +- "
                     f"{e.get('heading_sigma_deg', float('nan')):.1f} deg"
                 )
+        motions = r.get("motions") or []
+        if motions:
+            con.print("  per rotation: poses, duration s, angle deg, gravity miss deg")
+        for m in motions[:40]:
+            con.print(
+                f"    {m['from_pose']:2d} -> {m['to_pose']:2d} {m['duration_s']:6.1f} "
+                f"{m['angle_deg']:7.1f} {m['residual_deg']:8.4f}"
+            )
         poses = [p for p in r.get("poses", []) if isinstance(p, dict) and "residual" in p]
         if poses:
             con.print("  per pose: start s, held s, residual |C(m-b)| - g (its sigma), mm/s^2")
