@@ -121,29 +121,23 @@ def _bench(d: DaemonProc) -> dict[str, Any]:
 def temp_capture(daemon: DaemonProc) -> Iterator[subprocess.Popen[str]]:
     """`imud calibrate temp` on the chamber, started at once so that its 60 s overlap the
     accel and gyro captures."""
-    p = subprocess.Popen(
-        [sys.executable, "-m", "imud", "calibrate", "temp", "--device", "chamber",
-         "--config", str(daemon.config), "--duration", "60", "--json"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )  # fmt: skip
-    yield p
-    if p.poll() is None:
-        p.kill()
-        p.communicate()
+    yield from _in_background(daemon, "temp", "--device", "chamber", "--duration", "60")
 
 
 @pytest.fixture(scope="module")
 def mag_capture(daemon: DaemonProc) -> Iterator[subprocess.Popen[str]]:
     """`imud calibrate mag` on the compass, also started at once."""
+    yield from _in_background(daemon, "mag", "--device", "compass", "--duration", "120")
+
+
+def _in_background(d: DaemonProc, *args: str) -> Iterator[subprocess.Popen[str]]:
+    """`imud calibrate ARGS --config ... --json` running while the other tests run."""
     p = subprocess.Popen(
-        [sys.executable, "-m", "imud", "calibrate", "mag", "--device", "compass",
-         "--config", str(daemon.config), "--duration", "120", "--json"],
+        [sys.executable, "-m", "imud", "calibrate", *args, "--config", str(d.config), "--json"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-    )  # fmt: skip
+    )
     yield p
     if p.poll() is None:
         p.kill()
@@ -166,17 +160,7 @@ def turntable_accel_file(path: Path) -> None:
 def gyro_capture(daemon: DaemonProc) -> Iterator[subprocess.Popen[str]]:
     """`imud calibrate gyro` on the turntable, in the background from the start."""
     turntable_accel_file(daemon.config.parent / "turntable.cal.toml")
-    p = subprocess.Popen(
-        [sys.executable, "-m", "imud", "calibrate", "gyro", "--device", "turntable",
-         "--config", str(daemon.config), "--min-still", "1.5", "--json"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )  # fmt: skip
-    yield p
-    if p.poll() is None:
-        p.kill()
-        p.communicate()
+    yield from _in_background(daemon, "gyro", "--device", "turntable", "--min-still", "1.5")
 
 
 def _wait_applied(d: DaemonProc, name: str, path: Path) -> dict[str, Any]:
