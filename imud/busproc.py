@@ -27,6 +27,7 @@ from typing import Any
 from imud.backoff import Backoff
 from imud.busmsg import HEADER, KIND_DATA, PUBLISH, RAW_WANTED, RECV_MAX, STATUS
 from imud.chips.api import DeviceBase
+from imud.errors import BUS_ERROR_KEYS
 from imud.status import DeviceState, initial_status
 
 log = logging.getLogger("imud.busproc")
@@ -39,7 +40,7 @@ _WIRE_HEAD = struct.Struct("<6xHQI")  # name_len, first_seq, count: the head of 
 _COUNTERS = (
     "samples", "lost_samples", "invalid_samples", "fifo_overflows", "bus_errors",
     "bad_registers", "restarts", "unexpected_errors", "publish_dropped",
-    "calibration_outside_span",
+    "calibration_outside_span", "garbled_transfers", *BUS_ERROR_KEYS.values(),
 )  # fmt: skip
 
 Put = Callable[[bytes], Any]

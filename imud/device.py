@@ -23,7 +23,14 @@ from imud.calib.model import CalibrationModel
 from imud.calib.track import GyroBiasTracker
 from imud.channels import INVALID_MASK, Channel
 from imud.chips.api import DeviceBase, Driver, SimChip
-from imud.errors import BusError, DeviceIdentityError, RegisterMismatch
+from imud.errors import (
+    BUS_ERROR_KEYS,
+    BusError,
+    DeviceIdentityError,
+    ErrorKind,
+    RegisterMismatch,
+    error_kind,
+)
 from imud.pipeline import Pipeline, SampleBatch
 from imud.status import DeviceState, initial_status
 from imud.timestamps import SampleClock
@@ -80,6 +87,7 @@ class DeviceRunner:
         self.lost_samples = 0
         self.invalid_samples = 0
         self.bus_errors = 0
+        self.bus_errors_by_kind = dict.fromkeys(ErrorKind, 0)
         self.restarts = 0
         self.unexpected_errors = 0
         self.batches = 0
@@ -181,7 +189,7 @@ class DeviceRunner:
         except _EXPECTED as e:
             self._starting = None
             if isinstance(e, BusError):
-                self.bus_errors += 1
+                self._count_bus_error(e)
             self._fail(f"start failed: {e}", self.now_ns())
             return
         except Exception as e:
@@ -245,7 +253,7 @@ class DeviceRunner:
             self._start(now)
             return
         except _EXPECTED as e:
-            self.bus_errors += 1
+            self._count_bus_error(e)
             self._read_failed(f"bus error: {e}", now)
             return
         except Exception as e:
@@ -255,6 +263,10 @@ class DeviceRunner:
         self._publish(batch, now)
         self._publish_truth()
         self._update_rate(now)
+
+    def _count_bus_error(self, e: BaseException) -> None:
+        self.bus_errors += 1
+        self.bus_errors_by_kind[error_kind(e)] += 1
 
     def _read_failed(self, msg: str, now: int) -> None:
         self._failures += 1
@@ -389,6 +401,9 @@ class DeviceRunner:
             "invalid_samples": self.invalid_samples,
             "fifo_overflows": c.fifo_overflows if c else 0,
             "bus_errors": self.bus_errors,
+            **{BUS_ERROR_KEYS[k]: n for k, n in self.bus_errors_by_kind.items()},
+            # frames the driver read whole but found corrupt (CRC, checksum, garbled framing)
+            "garbled_transfers": c.bad_transfers if c else 0,
             "bad_registers": c.bad_registers if c else 0,
             "restarts": self.restarts,
             "unexpected_errors": self.unexpected_errors,

@@ -11,6 +11,7 @@ from imud.buses.models import describe
 from imud.calib.track import GyroBiasTracker
 from imud.channels import CHANNELS, channels_in
 from imud.chips.api import DeviceBase
+from imud.errors import BUS_ERROR_KEYS
 
 
 class DeviceState(StrEnum):
@@ -37,7 +38,9 @@ def initial_status(cfg: DeviceBase) -> dict[str, Any]:
         "lost_samples": 0,
         "invalid_samples": 0,
         "fifo_overflows": 0,
-        "bus_errors": 0,
+        "bus_errors": 0,  # transfers that failed, all kinds; then per kind (imud.errors)
+        **dict.fromkeys(BUS_ERROR_KEYS.values(), 0),
+        "garbled_transfers": 0,  # read whole, found corrupt by the driver (CRC, checksum)
         "bad_registers": 0,
         "restarts": 0,
         "unexpected_errors": 0,

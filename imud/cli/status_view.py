@@ -7,6 +7,7 @@ import time
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
+from imud.errors import BUS_ERROR_KEYS
 from imud.status import DeviceState
 
 if TYPE_CHECKING:
@@ -113,6 +114,11 @@ def status_view(st: dict[str, Any], endpoint: str, console: Console) -> list[Ren
     now = time.time()
     for d in devices:
         parts = [f"{d[k]} {label}" for k, label, col in _NOTES if d.get(k) and col not in cols]
+        kinds = [f"{k.split('_')[-1]} {d[k]}" for k in BUS_ERROR_KEYS.values() if d.get(k)]
+        if kinds:
+            parts.append("bus errors by kind: " + ", ".join(kinds))
+        if d.get("garbled_transfers"):
+            parts.append(f"{d['garbled_transfers']} garbled transfers")
         line = ", ".join(parts)
         if d.get("calibration_error"):
             line += ("; " if line else "") + f"uncalibrated: {d['calibration_error']}"
