@@ -21,7 +21,7 @@ from imud.chips.mpu6050 import registers as R
 from imud.chips.mpu6050.config import Mpu6050Config
 from imud.chips.regplan import RegisterChecker, RegisterPlan, RegisterSetting
 from imud.clock import Clock
-from imud.errors import BusError, DeviceIdentityError
+from imud.errors import BusError, DeviceIdentityError, ErrorKind, error_kind
 
 STANDARD_GRAVITY = 9.80665
 SAMPLE_BYTES = 12  # accel xyz + gyro xyz
@@ -205,10 +205,13 @@ class Mpu6050Driver:
             return self._batch(_NONE, _NONE, temp, t_before, t_after)
         try:
             data = self.dev.read(R.Register.FIFO_R_W, n * SAMPLE_BYTES)
-        except BusError:
-            # the burst may have stopped mid-sample: the FIFO is no longer aligned. (A failed
-            # status or count read leaves the FIFO untouched and needs no reset.)
-            self._need_reset = True
+        except BusError as e:
+            # A NAK comes in an address phase, before the chip sends a byte: the FIFO is as it
+            # was, and the next poll reads it all (nothing lost while it has room). Any other
+            # failure may have stopped the burst mid-sample: the FIFO is no longer aligned.
+            # (A failed status or count read leaves the FIFO untouched and needs no reset.)
+            if error_kind(e) != ErrorKind.NAK:
+                self._need_reset = True
             raise
         accel, gyro = decode_fifo(data)
         return self._batch(accel, gyro, temp, t_before, t_after)
