@@ -22,7 +22,7 @@ from imud.buses.models import describe
 from imud.calib.model import CalibrationModel
 from imud.calib.track import GyroBiasTracker
 from imud.channels import INVALID_MASK, Channel
-from imud.chips.api import DeviceBase, Driver, SimChip
+from imud.chips.api import DeviceBase, Driver, RawBatch, SimChip
 from imud.errors import (
     BUS_ERROR_KEYS,
     BusError,
@@ -242,9 +242,12 @@ class DeviceRunner:
             return
         self.next_due_ns = now + self._poll_delay()
         try:
-            raw = self.driver.read()
+            raw: RawBatch | None = self.driver.read()
             assert self.pipeline is not None
-            batch = self.pipeline.process(raw)
+            batches = []
+            while raw is not None:
+                batches.append(self.pipeline.process(raw))
+                raw = raw.then
         except RegisterMismatch as e:
             self.restarts += 1
             self._error(str(e))
@@ -260,7 +263,8 @@ class DeviceRunner:
             self._read_failed(self.unexpected("read", e), now)
             return
         self._failures = max(0, self._failures - 1)
-        self._publish(batch, now)
+        for batch in batches:
+            self._publish(batch, now)
         self._publish_truth()
         self._update_rate(now)
 

@@ -69,7 +69,9 @@ class SampleClock:
         self._pending_resync = False
         self._pending_restart: tuple[int, int] | None = None
         self._tps: float | None = None  # chip-counter ticks per sample, when a driver gives them
-        self._last_tick: int | None = None
+        self._last_tick: int | None = None  # the counter at the newest delivered sample
+        self._tick_u = 0  # unwrapped ticks at the newest delivered sample
+        self._tick_base = (0, 0)  # (sample index, unwrapped ticks) where the baseline starts
         self._rebase = False
         self._count = 0
         self._seg_n = 0
@@ -173,34 +175,62 @@ class SampleClock:
             (t - self._correction() - self._t_ref - self._my) / self.period + self._k_ref + self._mk
         )
 
-    def _learn_ticks(self, n: int, ticks: npt.NDArray[np.int64], mod: int, continued: bool) -> None:
-        """Ticks per sample of the chip's own counter, from packets inside one batch (always
-        consecutive samples), or from the last batch's newest packet when this batch continues
-        it (a chip read one sample at a time): whatever the tick's unit, it is constant on the
-        chip's clock."""
-        span, steps = 0, n - 1
-        if continued and self._last_tick is not None:
-            span, steps = (int(ticks[-1]) - self._last_tick) % mod, n
-        elif n >= 2:
-            span = int(ticks[-1] - ticks[0]) % mod
-        if span and steps and span < mod // 2:
-            tps = span / steps
-            self._tps = tps if self._tps is None else 0.9 * self._tps + 0.1 * tps
+    def _learn_ticks(
+        self, first: int, n: int, ticks: npt.NDArray[np.int64], mod: int, advance: int | None
+    ) -> None:
+        """Ticks per sample of the chip's own counter, whatever the tick's unit (constant on the
+        chip's clock): the unwrapped ticks over the samples counted since the counter was last
+        followed without a break, so the estimate sharpens as 1/samples rather than staying at a
+        batch's quantisation. `advance`: unwrapped ticks from the last batch's newest packet to
+        this batch's first, when known (a batch continuing the stream, or a gap counted by
+        ticks); None starts the baseline over."""
+        if n >= 2:
+            steps = np.diff(ticks) % mod
+            if int(steps.max()) >= mod // 2:  # a sample apart is half a wrap: ticks say nothing
+                self._tps = self._last_tick = None
+                return
+            span = int(steps.sum())
+        else:
+            span = 0
+        if advance is None or self._last_tick is None:
+            self._tick_base = (first, 0)
+            self._tick_u = span
+        else:
+            self._tick_u += advance + span
         self._last_tick = int(ticks[-1])
+        k0, u0 = self._tick_base
+        samples = first + n - 1 - k0
+        # a new baseline replaces the old estimate once it is long enough to be better (the
+        # ratio is fixed by the chip's clock tree: it changes only with its clock source)
+        if samples >= 1 and (self._tps is None or samples >= 256):
+            tps = (self._tick_u - u0) / samples
+            if tps < mod // 2:
+                self._tps = tps
 
-    def _tick_index(self, k_host: int, n: int, ticks: npt.NDArray[np.int64], mod: int) -> int:
+    def _tick_index(
+        self, k_host: int, n: int, ticks: npt.NDArray[np.int64], mod: int, uncertain: float | None
+    ) -> tuple[int, int | None]:
         """After a gap, count the samples in it from the chip's counter (exact), using the host
-        estimate only to choose how often the counter wrapped meanwhile."""
+        estimate only to choose how often the counter wrapped meanwhile. `uncertain`: how many
+        samples the host estimate may be off (its read brackets' width; None: unknown, taken as
+        a quarter wrap): while that is under half a wrap, the ticks decide; beyond it the wrap
+        count is a guess and the host's own estimate stands. Returns the index and the
+        unwrapped ticks across the gap (None: the host's count was kept)."""
         if self._tps is None or self._last_tick is None or self.k_last < 0:
-            return k_host
+            return k_host, None
         gap = (int(ticks[0]) - self._last_tick) % mod
         per_wrap = mod / self._tps
+        if uncertain is None:
+            uncertain = per_wrap / 4
+        if uncertain >= per_wrap / 2 - 1:
+            return k_host, None
         first_host = k_host - n + 1
         wraps = max(0, round((first_host - self.k_last - gap / self._tps) / per_wrap))
-        first = self.k_last + round((gap + wraps * mod) / self._tps)
-        if abs(first - first_host) > per_wrap / 4:  # host and chip disagree: keep the host's
-            return k_host
-        return first + n - 1
+        advance = gap + wraps * mod
+        first = self.k_last + round(advance / self._tps)
+        if abs(first - first_host) > uncertain + 2:
+            return k_host, None  # host and chip disagree beyond the host's error: keep the host's
+        return first + n - 1, advance
 
     def _resync_index(
         self, n: int, t_before: int, t_after: int, restart: tuple[int, int] | None
@@ -224,6 +254,37 @@ class SampleClock:
 
         return min((k0 - 1, k0, k0 + 1), key=off_line)
 
+    def _counted(
+        self,
+        k_host: int,
+        n: int,
+        t_before: int,
+        t_after: int,
+        resync: bool,
+        full: bool,
+        restart: tuple[int, int] | None,
+        ticks: npt.NDArray[np.int64],
+        mod: int,
+    ) -> tuple[int, int | None]:
+        """The batch's newest index with the chip's counter, and the ticks since the last batch
+        (None: the counter cannot be followed across the gap)."""
+        if self.k_last < 0 or self._last_tick is None:
+            return k_host, None
+        if not resync:
+            if k_host != self.k_last + n:
+                return k_host, None
+            return k_host, (int(ticks[0]) - self._last_tick) % mod
+        # how far off the host's count may be: the width of the read it placed the batch by;
+        # unknown for a batch that is not the newest and says nothing of when it ended
+        uncertain: float | None = None
+        if not full or restart is not None:
+            lo, hi = restart if full and restart is not None else (t_before, t_after)
+            uncertain = (hi - lo) / self.period + 2
+        k, advance = self._tick_index(k_host, n, ticks, mod, uncertain)
+        if k < self.k_last + n:  # neither count can go backwards
+            return self.k_last + n, None
+        return k, advance
+
     def resume(self, next_seq: int, last_t_ns: int) -> None:
         """Continue a stream stamped elsewhere (a bus process that died) up to `last_t_ns`,
         whose next sample would have been `next_seq`: the first batch counts the gap from the
@@ -237,7 +298,8 @@ class SampleClock:
         self._count = 0
         self._seg_n = 0
         self._vk = self._cky = self._mk = self._my = 0.0
-        self.period = self.nominal
+        # the period is kept: a reset restarts the chip's sample grid, not its oscillator, and
+        # the gap until the first read of the new grid is counted with it
         self._recent.clear()
         self._history.clear()
         self._bounds = (1.0, 0.0)
@@ -292,11 +354,10 @@ class SampleClock:
             k_new = max(self._resync_index(n, t_before, t_after, restart), self.k_last + n)
         else:
             k_new = self.k_last + n
-        if resync and ticks is not None and ticks_modulo:
-            k_new = max(self._tick_index(k_new, n, ticks, ticks_modulo), self.k_last + n)
         if ticks is not None and ticks_modulo:
-            continued = not resync and self.k_last >= 0 and k_new == self.k_last + n
-            self._learn_ticks(n, ticks, ticks_modulo, continued)
+            k_new, advance = self._counted(k_new, n, t_before, t_after, resync, full, restart,
+                                           ticks, ticks_modulo)  # fmt: skip
+            self._learn_ticks(k_new - n + 1, n, ticks, ticks_modulo, advance)
         first = k_new - n + 1
         lost = first - (self.k_last + 1) if self.k_last >= 0 else 0
         if resync and restart is not None and self._count:

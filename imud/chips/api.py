@@ -131,6 +131,9 @@ class RawBatch:
     channels: dict[Channel, RawChannel]
     timing: FifoRead | Stamped
     alarm: npt.NDArray[np.bool_] | None = None  # per sample: the chip's status raised an alarm
+    # the samples after a break inside one read (a chip counter showed samples missing between
+    # two packets): processed and published after this batch, in order
+    then: RawBatch | None = None
 
 
 @dataclass(slots=True)

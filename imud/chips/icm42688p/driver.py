@@ -10,6 +10,7 @@ packet's other sensors are still published.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -62,6 +63,28 @@ class Packets:
     @property
     def n(self) -> int:
         return int(self.accel.shape[0])
+
+    def part(self, a: int, b: int) -> Packets:
+        return Packets(
+            self.accel[a:b],
+            self.gyro[a:b],
+            self.temperature_c[a:b],
+            self.timestamp[a:b],
+            self.accel_invalid[a:b],
+            self.gyro_invalid[a:b],
+            self.temperature_invalid[a:b],
+            self.clean,
+        )
+
+
+def timestamp_breaks(ticks: npt.NDArray[np.int64], ticks_per_sample: float) -> list[int]:
+    """Where consecutive FIFO packets are not consecutive samples: the chip dropped samples
+    while its FIFO was full, and resumed when a read made room, all between two of our reads.
+    The packets after the break start a new run (indices into the batch)."""
+    if ticks.size < 2 or 2.5 * ticks_per_sample >= R.TIMESTAMP_MODULO:
+        return []  # a sample apart is most of a wrap: the counter cannot show a missing one
+    steps = np.diff(ticks) % R.TIMESTAMP_MODULO
+    return [int(i) + 1 for i in np.flatnonzero(steps > 1.5 * ticks_per_sample)]
 
 
 # One FIFO packet as a NumPy record: decoding a batch is one zero-copy view, not a loop
@@ -226,6 +249,8 @@ class Icm42688pDriver:
         self._checker = RegisterChecker([self.plan], clock, self.counters)
         self._resync = False
         self._restart_ns: tuple[int, int] | None = None
+        self.ticks_per_sample = self.nominal_period_ns / R.TICK_NS
+        self._last_read_ns = 0  # when the last FIFO data read began: room was made from then
 
     def start(self) -> Iterator[int]:
         _select_bank(self.dev, 0)  # a stale bank would make WHO_AM_I read wrong
@@ -254,6 +279,7 @@ class Icm42688pDriver:
         t0 = self.clock.now_ns()
         self.dev.write_u8(R.Bank0.SIGNAL_PATH_RESET, R.SignalPathReset.FIFO_FLUSH)
         self._restart_ns = (t0, self.clock.now_ns())
+        self._last_read_ns = t0
         self._resync = True
         self.dev.read(R.Bank0.INT_STATUS, 3)  # the first count after a flush reads 0: discard it
         self.counters.fifo_resets += 1
@@ -307,13 +333,36 @@ class Icm42688pDriver:
             batch = self._batch(p, t_before, t_after)
             self._flush()
             return batch
-        batch = self._batch(p, t_before, t_after, full=full)
+        breaks = timestamp_breaks(p.timestamp, self.ticks_per_sample)
+        if breaks:
+            batch = self._broken(p, breaks, t_before, t_after, full)
+        else:
+            batch = self._batch(p, t_before, t_after, full=full)
+        self._last_read_ns = r0
         if full:
             # stop-on-full: what we read is whole and valid, but the chip dropped the samples
             # that came while it was full; space frees as we read, so the stream resumes then
             self.counters.fifo_overflows += 1
             self._resync, self._restart_ns = True, (r0, r1)
         return batch
+
+    def _broken(
+        self, p: Packets, breaks: list[int], t_before: int, t_after: int, full: bool
+    ) -> RawBatch:
+        """A batch whose packets jump in time: the FIFO filled after the last read began (a
+        stall inside it) and took new samples when that read made room. Each run is its own
+        batch, chained: the first continues the stream but is not the newest (no phase), each
+        later one follows a gap its timestamps count, the last is newest unless full now."""
+        self.counters.fifo_overflows += len(breaks)
+        edges = [0, *breaks, p.n]
+        first = self._batch(p.part(0, edges[1]), t_before, t_after, full=True)
+        tail = first
+        for j, (a, b) in enumerate(itertools.pairwise(edges[1:])):
+            last = j == len(breaks) - 1
+            self._resync, self._restart_ns = True, (self._last_read_ns, t_before)
+            tail.then = self._batch(p.part(a, b), t_before, t_after, full=full or not last)
+            tail = tail.then
+        return first
 
     def stop(self) -> None:
         with contextlib.suppress(BusError):

@@ -185,6 +185,10 @@ INVALID_16 = -32768  # a sensor's three axes (or the temperature) with no valid 
 INVALID_20 = -(2**19)
 INVALID_TEMP_8 = -128  # the int8 FIFO temperature's invalid value
 TIMESTAMP_MODULO = 1 << 16  # the FIFO timestamp field
+# FIFO timestamp tick (TMST_RES = 0) on the internal clock: 1 us x 32/30 (PLL 19.2 MHz; TDK eMD).
+# It counts on the oscillator the samples are made on, so ticks per sample do not depend on the
+# oscillator's error (an external CLKIN would change the ratio).
+TICK_NS = 1000.0 * 32 / 30
 RESET_WAIT_NS = 2_000_000  # 1 ms after SOFT_RESET_CONFIG, with margin
 POWER_ON_WAIT_NS = 300_000  # no register write within 200 us of a PWR_MGMT0 change
 STARTUP_WAIT_NS = 60_000_000  # gyro start-up before its data is valid (TDK, Linux: 60 ms)

@@ -42,7 +42,6 @@ FIGURES = ChipFigures(
 ACCEL_STARTUP_NS = 20_000_000
 GYRO_STARTUP_NS = 30_000_000
 RESET_BUSY_NS = 1_000_000
-TICK_NS = 1000.0 * 32 / 30  # FIFO timestamp tick at nominal clock (PLL 19.2 MHz, TDK eMD)
 INVALID16 = -32768
 # plain ints on the hot path: an operator on an IntFlag builds a new enum member each time
 _DATA_RDY = int(R.IntStatus.DATA_RDY_INT)
@@ -145,7 +144,7 @@ class Icm42688pSim(SampledChip):
     def _ticks(self, t_ns: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
         """The FIFO timestamp: a free-running counter on the chip's own (imperfect) clock."""
         chip_ns = (t_ns - self.t_origin_ns) * (1 + self.clock_error)
-        ticks: npt.NDArray[np.int64] = np.floor(chip_ns / TICK_NS).astype(np.int64) & 0xFFFF
+        ticks: npt.NDArray[np.int64] = np.floor(chip_ns / R.TICK_NS).astype(np.int64) & 0xFFFF
         return ticks
 
     def _packets(
