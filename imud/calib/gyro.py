@@ -104,7 +104,9 @@ def _latitude_rad(latitude_deg: float) -> float:
     return math.radians(latitude_deg)
 
 
-def fit_gyro_bias(rec: Recording, latitude_deg: float | None = None) -> AffineEstimate:
+def fit_gyro_bias(
+    rec: Recording, latitude_deg: float | None = None, significance: float = 0.01
+) -> AffineEstimate:
     """The gyro bias (procedure "gyro-bias", matrix identity) from a still recording.
 
     Its covariance is that of the mean from the data's own noise (block averaging). Residuals:
@@ -146,7 +148,7 @@ def fit_gyro_bias(rec: Recording, latitude_deg: float | None = None) -> AffineEs
     if not check.still:
         ok = False
         reasons.append(check.reason)
-    elif p_value < 0.01:
+    elif p_value < significance:
         ok = False
         reasons.append(
             f"the gyro's mean wandered during the recording: its {segments} segment means "
@@ -711,6 +713,7 @@ def fit_gyro_full(
     full_turns: bool = False,
     accel: AffineEstimate | None = None,
     latitude_deg: float | None = None,
+    significance: float = 0.01,
 ) -> AffineEstimate:
     """Gyro scale and misalignment (a general 3x3 C, procedure "gyro-full") from the rotations
     between consecutive still poses (see the module docstring).
@@ -726,7 +729,7 @@ def fit_gyro_full(
     pose was a whole number of turns. latitude_deg: model Earth's rotation (one more parameter,
     the heading, reported in details["earth"]); None leaves it out. Raises CalibrationRefused
     when too few rotations were found; otherwise the verdict says whether C may be used (named
-    undetermined axes, chi2)."""
+    undetermined axes, chi2; refused below p = `significance`)."""
     if intervals is None:
         intervals = find_still(rec)
     intervals = sorted(intervals, key=lambda iv: iv.start)
@@ -869,8 +872,8 @@ def fit_gyro_full(
         chi2_m = float(r_m @ np.linalg.solve(v_m, r_m))
         dof_m = n_mean - (4 if free_bias else 1)  # less the bias and heading they determine
         pose_part = (chi2_m, dof_m, chi2_sf(chi2_m, dof_m) if dof_m > 0 else 1.0)
-    if p_value < 0.01:
-        poses_fail = pose_part is not None and pose_part[2] < 0.01
+    if p_value < significance:
+        poses_fail = pose_part is not None and pose_part[2] < significance
         if pose_part is not None and poses_fail:
             chi2_m, dof_m, _ = pose_part
             reasons.append(

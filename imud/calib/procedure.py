@@ -242,7 +242,11 @@ def gyro_needs_more(
         if check_still(rec).still:
             return None
         est = fit_gyro_full(
-            rec, find_still(rec, min_still_s), None, full_turns, latitude_deg=latitude_deg
+            rec,
+            find_still(rec, min_still_s),
+            None,
+            full_turns,
+            latitude_deg=latitude_deg,
         )
     except CalibrationRefused as e:
         return str(e)
@@ -256,6 +260,7 @@ def run_gyro(
     cf: CalibrationFile | None = None,
     min_still_s: float = 2.0,
     latitude_deg: float | None = None,
+    significance: float = 0.01,
 ) -> Outcome:
     """A still recording gives the bias; one with rotations between still poses gives the bias
     (from the poses) and the full matrix. The file's accelerometer calibration, when there is
@@ -267,7 +272,7 @@ def run_gyro(
     notes: list[str] = []
     rec = _gravity_corrected(rec, cf, notes)
     if check_still(rec).still:
-        est = fit_gyro_bias(rec, latitude_deg)
+        est = fit_gyro_bias(rec, latitude_deg, significance)
     else:
         if cf is None or cf.accel is None:
             notes.append(
@@ -276,7 +281,12 @@ def run_gyro(
                 "(calibrate accel first, into the same file)"
             )
         est = fit_gyro_full(
-            rec, find_still(rec, min_still_s), None, full_turns, latitude_deg=latitude_deg
+            rec,
+            find_still(rec, min_still_s),
+            None,
+            full_turns,
+            latitude_deg=latitude_deg,
+            significance=significance,
         )
     report = affine_report(est)
     report["notes"] = notes

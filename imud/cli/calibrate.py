@@ -301,6 +301,16 @@ def _prepared(job: Job, rec: Any) -> tuple[Any, list[str]]:
     return (rec, []) if job.out is None else compensate(rec, job.existing())
 
 
+def _significance(f: Any) -> Any:
+    return click.option(
+        "--significance",
+        type=click.FloatRange(min=1e-12, max=0.5),
+        default=0.01,
+        show_default=True,
+        help="chance of refusing a right calibration by chance (the residual test's p threshold)",
+    )(f)
+
+
 def _min_still(f: Any) -> Any:
     return click.option(
         "--min-still",
@@ -341,13 +351,7 @@ def _gravity(job: Job, gravity: float | None, lat: float | None, h: float | None
     show_default=True,
     help="live: distinct orientations to capture before fitting",
 )
-@click.option(
-    "--significance",
-    type=click.FloatRange(min=1e-12, max=0.5),
-    default=0.01,
-    show_default=True,
-    help="chance of refusing a right calibration by chance (the residual test's p threshold)",
-)
+@_significance
 def accel(
     gravity: float | None,
     latitude: float | None,
@@ -402,7 +406,10 @@ def accel(
     help="degrees north: model Earth's rotation (15 deg/h), which MEMS-grade turns and still "
     "poses can resolve",
 )
-def gyro(full_turns: bool, min_still: float, latitude: float | None, **opts: Any) -> None:
+@_significance
+def gyro(
+    full_turns: bool, min_still: float, latitude: float | None, significance: float, **opts: Any
+) -> None:
     """Gyro bias from still data (its standard error from the data's own noise); with rotations
     between still poses, also scale and misalignment."""
     from imud.calib.procedure import gyro_needs_more, run_gyro
@@ -420,7 +427,7 @@ def gyro(full_turns: bool, min_still: float, latitude: float | None, **opts: Any
     rec, notes = _prepared(job, rec)
     cf = job.existing() if job.out is not None else None
     try:
-        outcome = run_gyro(rec, full_turns, cf, min_still, latitude)
+        outcome = run_gyro(rec, full_turns, cf, min_still, latitude, significance)
     except CalibrationRefused as e:
         _refused(e, job.as_json)
     job.finish(outcome, None, notes, rec.source)
