@@ -42,6 +42,9 @@ Publish = Callable[[bytes], None]
 MAX_CONSECUTIVE_FAILURES = 10
 RETRY_MIN_NS = 500_000_000
 RETRY_MAX_NS = 30_000_000_000
+# A device that fails is probed again at most a second later however long it has been down (a
+# few bytes a second): a chip that comes back streams again within 1 s.
+DEVICE_RETRY_MAX_NS = 1_000_000_000
 LOSS_LOG_EVERY_NS = 10_000_000_000
 _EXPECTED = (BusError, DeviceIdentityError, OSError)  # a chip or bus that misbehaves
 
@@ -95,7 +98,7 @@ class DeviceRunner:
         self.measured_rate_hz = 0.0
         self._rate_window: deque[tuple[int, int]] = deque()
         self._failures = 0
-        self._retry = Backoff(RETRY_MIN_NS, RETRY_MAX_NS)
+        self._retry = Backoff(RETRY_MIN_NS, DEVICE_RETRY_MAX_NS)
         self.next_due_ns = 0
         self.pipeline: Pipeline | None = None
         self._starting: Iterator[int] | None = None

@@ -70,6 +70,8 @@ class SampleClock:
         self._pending_restart: tuple[int, int] | None = None
         self._tps: float | None = None  # chip-counter ticks per sample, when a driver gives them
         self._last_tick: int | None = None  # the counter at the newest delivered sample
+        self._tick_k = -1  # the sample index `_last_tick` belongs to
+        self.silent_gaps = 0  # gaps only the chip's counter showed (the FIFO said nothing)
         self._tick_u = 0  # unwrapped ticks at the newest delivered sample
         self._tick_base = (0, 0)  # (sample index, unwrapped ticks) where the baseline starts
         self._rebase = False
@@ -198,6 +200,7 @@ class SampleClock:
         else:
             self._tick_u += advance + span
         self._last_tick = int(ticks[-1])
+        self._tick_k = first + n - 1
         k0, u0 = self._tick_base
         samples = first + n - 1 - k0
         # a new baseline replaces the old estimate once it is long enough to be better (the
@@ -218,16 +221,16 @@ class SampleClock:
         unwrapped ticks across the gap (None: the host's count was kept)."""
         if self._tps is None or self._last_tick is None or self.k_last < 0:
             return k_host, None
-        gap = (int(ticks[0]) - self._last_tick) % mod
+        gap = (int(ticks[0]) - self._last_tick) % mod  # from the sample at self._tick_k
         per_wrap = mod / self._tps
         if uncertain is None:
             uncertain = per_wrap / 4
         if uncertain >= per_wrap / 2 - 1:
             return k_host, None
         first_host = k_host - n + 1
-        wraps = max(0, round((first_host - self.k_last - gap / self._tps) / per_wrap))
+        wraps = max(0, round((first_host - self._tick_k - gap / self._tps) / per_wrap))
         advance = gap + wraps * mod
-        first = self.k_last + round(advance / self._tps)
+        first = self._tick_k + round(advance / self._tps)
         if abs(first - first_host) > uncertain + 2:
             return k_host, None  # host and chip disagree beyond the host's error: keep the host's
         return first + n - 1, advance
@@ -265,25 +268,34 @@ class SampleClock:
         restart: tuple[int, int] | None,
         ticks: npt.NDArray[np.int64],
         mod: int,
-    ) -> tuple[int, int | None]:
-        """The batch's newest index with the chip's counter, and the ticks since the last batch
-        (None: the counter cannot be followed across the gap)."""
+    ) -> tuple[int, int | None, bool]:
+        """The batch's newest index with the chip's counter, the ticks since the last batch
+        (None: the counter cannot be followed across the gap), and whether the counter showed
+        a gap the FIFO did not (samples lost silently, e.g. bytes a failed transfer consumed)."""
         if self.k_last < 0 or self._last_tick is None:
-            return k_host, None
+            return k_host, None, False
+        silent = False
         if not resync:
-            if k_host != self.k_last + n:
-                return k_host, None
-            return k_host, (int(ticks[0]) - self._last_tick) % mod
+            advance = (int(ticks[0]) - self._last_tick) % mod
+            if self._tps is None:
+                return k_host, advance, False
+            expected = (k_host - n + 1 - self._tick_k) * self._tps
+            if abs(advance - expected) <= self._tps / 2:
+                return k_host, advance, False
+            self.silent_gaps += 1
+            silent = True
+            if not full:  # place the batch by its own read, as after a FIFO reset
+                k_host = max(self._resync_index(n, t_before, t_after, None), k_host)
         # how far off the host's count may be: the width of the read it placed the batch by;
         # unknown for a batch that is not the newest and says nothing of when it ended
         uncertain: float | None = None
         if not full or restart is not None:
             lo, hi = restart if full and restart is not None else (t_before, t_after)
             uncertain = (hi - lo) / self.period + 2
-        k, advance = self._tick_index(k_host, n, ticks, mod, uncertain)
+        k, advance_or_none = self._tick_index(k_host, n, ticks, mod, uncertain)
         if k < self.k_last + n:  # neither count can go backwards
-            return self.k_last + n, None
-        return k, advance
+            return self.k_last + n, None, silent
+        return k, advance_or_none, silent
 
     def resume(self, next_seq: int, last_t_ns: int) -> None:
         """Continue a stream stamped elsewhere (a bus process that died) up to `last_t_ns`,
@@ -329,16 +341,15 @@ class SampleClock:
         if n == 0:
             self._pending_resync = resync
             self._pending_restart = restart if resync else None
-            if not resync and not self._rebase and self.k_last >= 0:
+            if not resync and not full and not self._rebase and self.k_last >= 0:
                 self._observe(self.k_last, t_before, t_after)
             lost = 0
             if resync and restart is not None and self._count and not self._rebase:
                 # everything latched before the FIFO was emptied is gone: count it now, so a
                 # FIFO that overflows read after read shows its losses as they happen
                 k_gone = self._index_before(restart[0])
-                if k_gone > self.k_last:
+                if k_gone > self.k_last:  # (the counter, if any, still belongs to _tick_k)
                     lost, self.k_last = k_gone - self.k_last, k_gone
-                    self._last_tick = None  # k_last moved without a tick to go with it
             return Stamped(self.k_last + 1, lost, np.zeros(0, dtype=np.int64), self.period)
         self._pending_resync = False
         self._pending_restart = None
@@ -355,9 +366,10 @@ class SampleClock:
         else:
             k_new = self.k_last + n
         if ticks is not None and ticks_modulo:
-            k_new, advance = self._counted(k_new, n, t_before, t_after, resync, full, restart,
-                                           ticks, ticks_modulo)  # fmt: skip
+            k_new, advance, silent = self._counted(k_new, n, t_before, t_after, resync, full,
+                                                   restart, ticks, ticks_modulo)  # fmt: skip
             self._learn_ticks(k_new - n + 1, n, ticks, ticks_modulo, advance)
+            resync = resync or silent
         first = k_new - n + 1
         lost = first - (self.k_last + 1) if self.k_last >= 0 else 0
         if resync and restart is not None and self._count:

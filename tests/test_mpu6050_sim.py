@@ -106,7 +106,12 @@ def test_fifo_overflow_is_recovered_and_every_lost_sample_counted() -> None:
 
 
 def test_nak_faults_are_counted_and_samples_still_accounted() -> None:
-    rig = make_rig({"odr_hz": 1000}, _ideal(seed=9, nak_rate=0.01, clock_error=-0.004))
+    rig = make_rig({"odr_hz": 1000}, _ideal(seed=9, clock_error=-0.004))
+    rig.run(0.5)
+    assert rig.runner.state == "running"
+    faults = rig.bus.faults(0x68)
+    assert faults is not None
+    faults.nak_rate = 0.01  # from now on, while streaming
     rig.run(8.0, jitter_ns=100_000)
     m = concat(rig.batches())
     t = concat(rig.truth_batches())

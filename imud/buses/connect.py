@@ -41,12 +41,15 @@ def _sim_link(
     clock: Clock,
 ) -> Link:
     from imud.buses.serial import open_serial
+    from imud.sim.faults import TransferFaults
     from imud.sim.pty import PtyLink
     from imud.sim.spi import SimSpiDev
     from imud.sim.spiframe import SimSpiFrames
 
-    faults = d.sim.nak_rate if d.sim else 0.0
     seed = d.sim.seed if d.sim else 0
+    # one fault stream per die link (its chip select or address salts the draws)
+    salt = bus.cs if bus.transport == "spi" else bus.address
+    faults = TransferFaults(d.sim, clock, salt) if d.sim else None
     if bus.transport == "serial":
         if not isinstance(sim, StreamDie):
             raise TypeError(f"{spec.name}: its simulator has no serial side")
@@ -61,13 +64,13 @@ def _sim_link(
     if bus.transport == "spi" and spec.raw_spi:
         if not isinstance(sim, SpiFrameDie):
             raise TypeError(f"{spec.name}: its simulator does not take SPI frames")
-        return SimSpiFrames(sim, faults, seed + bus.cs)
+        return SimSpiFrames(sim, 0.0, seed + bus.cs, faults)
     if not isinstance(sim, SimDie):
         raise TypeError(f"{spec.name}: its simulator has no byte registers")
     if bus.transport == "spi":
-        spi = SimSpiDev(sim, faults, seed + bus.cs, die.spi_dummy_bytes)
+        spi = SimSpiDev(sim, 0.0, seed + bus.cs, die.spi_dummy_bytes, faults=faults)
         return register_device(bus, spi, die.spi_dummy_bytes)
-    shared.attach(bus.address, sim, faults)
+    shared.attach(bus.address, sim, faults=faults)
     return register_device(bus, shared)
 
 

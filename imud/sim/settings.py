@@ -132,6 +132,35 @@ class SerialFaults(_Strict):
     garbage_bytes: int = Field(16, ge=1, le=4096, description="length of a garbage burst")
 
 
+class Outage(_Strict):
+    """The device stops answering at `at_s` (seconds after it was wired) for `for_s` seconds: a
+    loose connector or a brown-out. I2C transfers are not acknowledged, SPI reads float high
+    (0xFF) and writes are lost."""
+
+    at_s: float = Field(ge=0.0)
+    for_s: float = Field(gt=0.0)
+
+
+class BusFaults(_Strict):
+    """`[device.sim.faults]`: what goes wrong on the bus, per transfer, drawn from the seed.
+
+    NAKs stay the top-level `nak_rate` (on SPI, which has no acknowledge, it reads as a floating
+    MISO line, as `garble_rate` does)."""
+
+    eio_rate: float = Field(0.0, ge=0.0, le=1.0, description="transfers failing with EIO")
+    timeout_rate: float = Field(
+        0.0, ge=0.0, le=1.0, description="transfers failing with ETIMEDOUT (a stuck controller)"
+    )
+    garble_rate: float = Field(
+        0.0, ge=0.0, le=1.0, description="SPI reads answered all 0xFF (MISO floating)"
+    )
+    stall_rate: float = Field(
+        0.0, ge=0.0, le=1.0, description="transfers that block the bus worker for stall_ms first"
+    )
+    stall_ms: float = Field(20.0, ge=0.0, le=10_000.0, description="length of one stall")
+    outages: list[Outage] = Field(default_factory=list, description="device vanishing")
+
+
 class MagneticSettings(_Strict):
     """The Earth's field where the simulated board is, and the board's own magnetic errors, for
     a chip with a magnetometer: hard iron (a constant offset from magnetised parts nearby) and
@@ -171,6 +200,7 @@ class SimSettings(_Strict):
         " (minutes), from temperature_c upward; 0: the linear ramp",
     )
     nak_rate: float = Field(0.0, ge=0.0, le=1.0, description="fraction of bus transfers NAKed")
+    faults: BusFaults = Field(default_factory=BusFaults)
     errors: ErrorSettings = Field(default_factory=ErrorSettings)
     serial: SerialFaults = Field(default_factory=SerialFaults)
     magnetic: MagneticSettings = Field(default_factory=MagneticSettings)

@@ -13,11 +13,20 @@ import threading
 import numpy as np
 
 from imud.chips.api import SpiFrameDie
+from imud.sim.faults import Fault, TransferFaults
+from imud.sim.spi import FLOATING, raise_for
 
 
 class SimSpiFrames:
-    def __init__(self, die: SpiFrameDie, fault_rate: float = 0.0, seed: int = 0) -> None:
+    def __init__(
+        self,
+        die: SpiFrameDie,
+        fault_rate: float = 0.0,
+        seed: int = 0,
+        faults: TransferFaults | None = None,
+    ) -> None:
         self.die = die
+        self.faults = faults
         self.fault_rate = fault_rate
         self.mode = 0
         self.max_speed_hz = 1_000_000
@@ -35,7 +44,11 @@ class SimSpiFrames:
             self.transfers += 1
             if self.fault_rate > 0 and self._rng.random() < self.fault_rate:
                 return [0xFF] * len(values)
+            drawn = self.faults.draw() if self.faults is not None else Fault.NONE
+            if drawn in FLOATING:  # a lost frame: the die never saw it
+                return [0xFF] * len(values)
             rx = self.die.spi_frame(bytes(values), speed_hz or self.max_speed_hz)
+            raise_for(drawn)  # the die saw the frame, then the transfer failed
             return list(rx)
 
     def close(self) -> None:

@@ -330,7 +330,8 @@ class Icm42688pDriver:
             # fewer packets than counted: a garbled burst (SPI reads 0xFF when MISO floats) or a
             # FIFO out of step. Keep what decoded, flush, and resync on the next read.
             self.counters.bad_transfers += 1
-            batch = self._batch(p, t_before, t_after)
+            # what decoded continues the stream, but is not the newest sample: no phase
+            batch = self._batch(p, t_before, t_after, full=True)
             self._flush()
             return batch
         breaks = timestamp_breaks(p.timestamp, self.ticks_per_sample)

@@ -1,0 +1,112 @@
+"""The `[device.sim.faults]` schedule, through each FIFO chip's driver and the device runner at
+virtual time (no scheduler involved): transfer errors by kind, stalls inside bus calls (the bus
+worker frozen mid-transfer, as a preempted thread or a stuck controller leaves it) and a device
+vanishing for a while.
+
+What must hold whatever the faults: every published sample carries the chip's own sample index
+(its seq minus the truth's index is one constant), so no gap is miscounted; the samples lost
+show as seq gaps on the wire and in `lost_samples`, exactly; stamps only rise; the errors are
+counted by the kind injected."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from imud.config import parse_config
+from imud.errors import ConfigError
+from imud.sim.faults import Fault
+from tests.helpers import Rig, concat, make_rig, match_truth
+
+SPI = {"kind": "sim", "transport": "spi", "cs": 0, "speed_hz": 10_000_000}
+I2C_PAIR = ({"kind": "sim", "bus": "i2c0", "address": 0x18},
+            {"kind": "sim", "bus": "i2c0", "address": 0x68})  # fmt: skip
+ICM_32K = {"chip": "icm42688p", "bus": SPI, "odr_hz": 32000, "gyro_range_dps": 250,
+           "accel_range_g": 4}  # fmt: skip
+MPU = {"chip": "mpu6050", "odr_hz": 1000}
+BMI = {"chip": "bmi088", "bus": I2C_PAIR[0], "gyro_bus": I2C_PAIR[1]}
+
+
+def _run(device: dict[str, Any], faults: dict[str, Any], seconds: float = 6.0) -> Rig:
+    sim = {"seed": 5, "clock_error": 0.004, "errors": {"ideal": True}, "faults": faults,
+           "motion": {"kind": "tumble", "rate_dps": [10.0, 20.0, 30.0]}}  # fmt: skip
+    rig = make_rig(device, sim)
+    rig.run(seconds, jitter_ns=50_000)
+    return rig
+
+
+def _check_accounting(rig: Rig) -> dict[str, np.ndarray]:
+    m = concat(rig.batches())
+    st = rig.runner.status()
+    assert st["state"] == "running"
+    assert np.all(np.diff(m["t_ns"]) > 0)
+    gaps = np.diff(m["seq"]) - 1
+    assert np.all(gaps >= 0)
+    assert st["lost_samples"] == int(gaps.sum())
+    return m
+
+
+def _check_indices(rig: Rig, m: dict[str, np.ndarray]) -> None:
+    """After the first second (the fit settles), seq - truth index is one constant."""
+    late = m["t_ns"] > m["t_ns"][0] + 1_000_000_000
+    mm = {k: v[late] for k, v in m.items()}
+    t = concat(rig.truth_batches())
+    i = match_truth(mm, t)
+    offsets = mm["seq"] - t["seq"][i]
+    assert offsets.min() == offsets.max(), np.unique(offsets)[:10]
+
+
+def test_icm_32khz_every_transfer_fault_counted_and_every_gap_exact() -> None:
+    rig = _run(ICM_32K, {"eio_rate": 1e-3, "timeout_rate": 1e-3, "garble_rate": 1e-3,
+                         "stall_rate": 2e-3, "stall_ms": 20})  # fmt: skip
+    m = _check_accounting(rig)
+    _check_indices(rig, m)
+    faults = rig.driver.dev.spi.faults
+    st = rig.runner.status()
+    # the test exercises what it claims: a 20 ms stall overflows a 4 ms FIFO
+    assert faults.stalls >= 10 and rig.driver.counters.fifo_overflows >= 10
+    assert st["lost_samples"] > 0
+    assert st["bus_errors_eio"] == faults.injected[Fault.EIO] > 0
+    assert st["bus_errors_timeout"] == faults.injected[Fault.TIMEOUT] > 0
+    assert faults.injected[Fault.GARBLE] > 0 and st["garbled_transfers"] > 0
+
+
+@pytest.mark.parametrize(("device"), [MPU, BMI], ids=["mpu6050", "bmi088"])
+def test_i2c_fifo_chips_through_stalls_keep_every_index(device: dict[str, Any]) -> None:
+    rig = _run(device, {"stall_rate": 5e-3, "stall_ms": 20})
+    m = _check_accounting(rig)
+    _check_indices(rig, m)
+    faults = rig.bus.faults(device.get("gyro_bus", {"address": 0x68})["address"])
+    assert faults is not None and faults.stalls > 0
+
+
+@pytest.mark.parametrize(("device", "period_ns"), [(ICM_32K, 1e9 / 32000), (MPU, 1e6)],
+                         ids=["icm42688p", "mpu6050"])  # fmt: skip
+def test_a_vanished_device_streams_again_within_a_second_of_coming_back(
+    device: dict[str, Any], period_ns: float
+) -> None:
+    """Gone from 2 s to 5 s after it was wired: reads fail, the runner restarts it and probes
+    it (backoff capped at 1 s); once back it is reset, reconfigured and streams. The gap's
+    sample count matches its duration (the chip's period carried across the reset)."""
+    rig = _run(device, {"outages": [{"at_s": 2.0, "for_s": 3.0}]}, seconds=8.0)
+    m = _check_accounting(rig)
+    wired = rig.clock.now_ns() - 8_000_000_000
+    back = wired + 5_000_000_000
+    t, seq = m["t_ns"], m["seq"]
+    j = int(np.argmax(np.diff(t)))
+    assert t[j] < wired + 2_000_000_000 < back <= t[j + 1] < back + 1_000_000_000
+    assert rig.runner.status()["restarts"] >= 1 and rig.driver.counters.resets >= 2
+    # seq goes on as the chip's clock would have: the gap counts the samples its time held
+    assert abs((seq[j + 1] - seq[j]) - (t[j + 1] - t[j]) / (period_ns / 1.004)) <= 2
+
+
+def test_fault_settings_are_checked_with_the_field_named() -> None:
+    dev = {"name": "a", "chip": "mpu6050", "bus": {"kind": "sim"}, "odr_hz": 100}
+    with pytest.raises(ConfigError, match=r"sim\.faults\.stall_rate = 2\.0: .*less than or equal"):
+        parse_config({"device": [{**dev, "sim": {"faults": {"stall_rate": 2.0}}}]})
+    with pytest.raises(ConfigError, match=r"sim\.faults\.outages\.0\.for_s: missing"):
+        parse_config({"device": [{**dev, "sim": {"faults": {"outages": [{"at_s": 1.0}]}}}]})
+    with pytest.raises(ConfigError, match=r"eio_rte: unknown field; did you mean 'eio_rate'"):
+        parse_config({"device": [{**dev, "sim": {"faults": {"eio_rte": 0.1}}}]})
