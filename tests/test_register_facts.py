@@ -286,6 +286,7 @@ ICM42688P_FACTS = [
     F("INVALID_20", -524288, f"{NV} Status: 20-bit marker · LX/PX4 reading; TDK bits [19:4]"),
     F("INVALID_TEMP_8", -128, f"{NV} §A.7 (a): packet 3 int8 · TDK-HL INVALID_VALUE_FIFO_1B"),
     F("TIMESTAMP_MODULO", 1 << 16, f"{NV} §3.1-3.2: 16-bit field, mod 2^16 · TDK-CAL, LX"),
+    F("TICK_NS", 1000.0 * 32 / 30, f"{NV} §3.2-3.3, 3.5: 1 us tick x 32/30 on the PLL · TDK-CAL"),
     # --- delays (minimum waits) and bus limit
     F("RESET_WAIT_NS", 1_000_000, f"{NV} §A.6, §4.5: 1 ms · TDK-HL, LX", at_least=True),
     F(
