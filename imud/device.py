@@ -204,7 +204,12 @@ class DeviceRunner:
             tracking = self.cfg.gyro_bias_tracking
             tracker = GyroBiasTracker(tracking) if tracking.enabled else None
             self.pipeline = Pipeline(
-                clock, self.calibration, self.epoch_offset_ns, self._resume, tracker
+                clock,
+                self.calibration,
+                self.epoch_offset_ns,
+                self._resume,
+                tracker,
+                group_delay_ns=self.driver.group_delay_ns,
             )
             self.pipeline.want_raw = self._want_raw
         elif self.pipeline.clock.k_last >= 0:

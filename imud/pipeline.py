@@ -1,6 +1,7 @@
 """Pipeline stages: pure functions on NumPy batches, raw counts to published samples, in order.
 
 raw channels --stamp (sample-clock fit, or the driver's own stamps)--> t_ns, seq
+             --less the filters' group delay (the driver's `group_delay_ns`)--> t_ns
              --flags (invalid, saturated, alarm)--> per-sample flags
              --to_si (NaN where invalid)--> SI (the `raw` stream, on demand)
              --calibrate (temperature, bias, matrix; imud.calib.model)--> corrected
@@ -161,14 +162,21 @@ class Pipeline:
         epoch_offset_ns: int,
         resume: tuple[int, int] | None = None,
         tracker: GyroBiasTracker | None = None,
+        group_delay_ns: int = 0,
     ) -> None:
         self.clock = clock
+        # the driver's configured filter delay at the nominal clock: every stamp is moved back by
+        # it, scaled to the chip's fitted clock (a filter's delay is so many of its own samples)
+        self.group_delay_ns = group_delay_ns
+        self._nominal_period_ns = clock.period
         self.cal = cal  # swapped whole by a reload between batches: no seq gap, no lock
         self.tracker = tracker
         self.want_raw = False  # someone subscribes to the uncorrected stream
         self._last_temp: float | None = None
         self.epoch_offset_ns = epoch_offset_ns
         self.period_ns = clock.period
+        if resume is not None:  # a published stamp: back to the latch instant the clock fits
+            resume = (resume[0], resume[1] + group_delay_ns)
         # (next seq, last stamp in host ns) of a stream to continue: the sample clock takes it
         # for reads it stamps; a driver's own stamps are shifted onto it (`_continue`)
         self._resume = resume
@@ -191,6 +199,10 @@ class Pipeline:
             return Stamped(st.first_seq + self._seq_offset, st.lost_before, st.t_ns, st.period_ns)
         return st
 
+    def delay_ns(self, period_ns: float) -> int:
+        """The group delay on the chip's clock, whose period is now `period_ns`."""
+        return round(self.group_delay_ns * period_ns / self._nominal_period_ns)
+
     @property
     def rate_hz(self) -> float:
         """The chip's output rate as fitted from its sample clock."""
@@ -201,6 +213,9 @@ class Pipeline:
         st = stamp(self.clock, t, raw.n) if isinstance(t, FifoRead) else self._continue(t)
         if st.period_ns:
             self.period_ns = st.period_ns
+        t_ns = st.t_ns
+        if self.group_delay_ns and t_ns.size:
+            t_ns = t_ns - self.delay_ns(st.period_ns or self.period_ns)
         flags = sample_flags(raw)
         si = to_si(raw)
         cal = self.cal  # one model for the whole batch, whatever a reload does meanwhile
@@ -221,7 +236,7 @@ class Pipeline:
             st.first_seq,
             st.lost_before,
             batch_flags,
-            st.t_ns + self.epoch_offset_ns,
+            t_ns + self.epoch_offset_ns,
             channels,
             flags,
             holes(raw, flags),

@@ -56,8 +56,9 @@ def test_still_level_reads_gravity_and_zero_rate_within_noise() -> None:
     rig.run(5.0)
     m = concat(rig.batches())
     n = len(m["seq"])
-    sigma_a = 400e-6 * G * math.sqrt(1000.0)  # datasheet density at 1 kHz
-    sigma_g = math.radians(0.005) * math.sqrt(1000.0)
+    # one-sided datasheet densities over the DLPF's band (dlpf_hz 188: accel 184 Hz, gyro 188 Hz)
+    sigma_a = 400e-6 * G * math.sqrt(184.0)
+    sigma_g = math.radians(0.005) * math.sqrt(188.0)
     mean_a = m["accel"].mean(axis=0)
     assert np.abs(mean_a - [0, 0, G]).max() < 5 * sigma_a / math.sqrt(n) + 0.0012  # + LSB/2
     assert np.abs(m["gyro"].mean(axis=0)).max() < 5 * sigma_g / math.sqrt(n) + 3e-5

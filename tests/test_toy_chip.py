@@ -77,6 +77,7 @@ class ToyConfig(DeviceBase):
 # --- driver --------------------------------------------------------------------------------------
 class ToyDriver:
     fifo_capacity = FIFO_SAMPLES
+    group_delay_ns = 0  # no filter
 
     def __init__(self, cfg: ToyConfig, dev: RegisterDevice, clock: Clock) -> None:
         self.dev, self.clock = dev, clock

@@ -151,6 +151,9 @@ class Driver(Protocol):
     nominal_period_ns: float  # of the published stream
     poll_interval_ns: int
     fifo_capacity: int  # samples the chip buffers (1 without a FIFO): how long a stall it survives
+    # the configured low-pass filters' group delay (ns, nominal clock): the pipeline moves every
+    # stamp back by it, so a stamp is the instant the motion happened (docs/timestamps.md)
+    group_delay_ns: int
     counters: DriverCounters
 
     def start(self) -> Iterator[int]:

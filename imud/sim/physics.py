@@ -2,9 +2,16 @@
 
 Measurement model (per sensor): m = M @ S @ (x + b0 + k_T (T - 25 C) + b_gm(t)) + n, with M a
 misalignment matrix, S diagonal scale, b0 a turn-on bias, k_T a linear temperature drift, b_gm a
-Gauss-Markov bias (bias instability), and n white noise of the datasheet density: per-sample sigma
-= density * sqrt(rate), the discrete equivalent Allan deviation sees. The chip's low-pass filter
-colouring of that noise and its group delay are not modelled.
+Gauss-Markov bias (bias instability), and n the noise of the datasheet density.
+
+The noise convention: a datasheet's noise density is one-sided (the MPU6050's 0.005 deg/s/rtHz
+and its 0.05 deg/s RMS at the 100 Hz DLPF: 0.005 * sqrt(100) = 0.05). A chip simulator built on
+`imud.sim.filters.FilteredChip` draws it that way: white noise of per-sample sigma
+density * sqrt(f / 2) on the chip's internal grid, through the chip's configured low-pass filter,
+so the output has RMS density * sqrt(noise bandwidth) and Allan N = density / sqrt(2) (the
+Allan deviation at 1 s). A simulator not yet built on it keeps `SensorErrors.apply`: unfiltered
+white noise of per-sample sigma density * sqrt(rate), sqrt(2) above that convention (Allan
+deviation at 1 s = density), with no group delay.
 
 For chips that estimate orientation or sense the magnetic field: the motion's true orientation as
 a quaternion (body -> world, ENU), and the Earth's field with a board's hard and soft iron. The
@@ -155,11 +162,18 @@ class SensorErrors:
         self.matrix = (np.eye(3) + skew) @ np.diag(1.0 + scale_err)
         self.gm = GaussMarkovBias(instability, gm_rng)
 
+    def deterministic(self, t_s: F64, x: F64, temp_c: F64) -> F64:
+        """Every error but the white noise: M S (x + b0 + k_T (T - 25 C) + b_gm(t))."""
+        b = self.bias + np.outer(temp_c - 25.0, self.drift) + self.gm.at(t_s)
+        y: F64 = (x + b) @ self.matrix.T
+        return y
+
     def apply(
         self, t_s: F64, x: F64, temp_c: F64, rate_hz: float, noise_rng: np.random.Generator
     ) -> F64:
-        b = self.bias + np.outer(temp_c - 25.0, self.drift) + self.gm.at(t_s)
-        y = (x + b) @ self.matrix.T
+        """The unfiltered model (a chip simulator without `imud.sim.filters`): white noise of
+        per-sample sigma density * sqrt(rate)."""
+        y = self.deterministic(t_s, x, temp_c)
         if self.noise > 0:
             y += noise_rng.normal(0.0, self.noise * math.sqrt(rate_hz), y.shape)
         return y

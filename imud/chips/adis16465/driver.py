@@ -130,6 +130,7 @@ class Adis16465Driver:
         speed = bus_speed_hz(cfg.bus) or R.MAX_BURST_SCLK_HZ
         self.reg_hz, self.burst_hz = frame_speeds(speed)
         self.nominal_period_ns = 1e9 / cfg.odr_hz
+        self.group_delay_ns = 0  # filter delay not modelled yet (docs/timestamps.md)
         self.poll_interval_ns = 0
         self.rate = RateEstimator(cfg.odr_hz)
         # the gyro and accel low words carry bits when the chip decimates or filters

@@ -87,6 +87,7 @@ class Bmi088Driver:
         self.counters = DriverCounters()
         self.spi = is_spi(cfg.bus)
         self.nominal_period_ns = 1e9 / cfg.odr_hz
+        self.group_delay_ns = 0  # filter delay not modelled yet (docs/timestamps.md)
         self.accel_period_ns = 1e9 / cfg.accel_odr_hz
         self.fifo_capacity = R.GYRO_FIFO_FRAMES
         acc_frames = R.ACC_FIFO_BYTES // R.ACC_FRAME_BYTES

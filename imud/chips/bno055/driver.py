@@ -125,6 +125,7 @@ class Bno055Driver:
         self.mode = MODES[cfg.mode]
         self.fusion = int(self.mode) in _FUSION
         self.nominal_period_ns = 1e9 / R.FUSION_RATE_HZ
+        self.group_delay_ns = 0  # filter delay not modelled yet (docs/timestamps.md)
         self.grid = SampleGrid(self.nominal_period_ns, CLOCK_TOLERANCE)
         # from a read's start to the chip's snapshot: the request's chunks on a UART
         self._latch_lead_ns = CHUNK_GAP_NS if uart is not None else 0

@@ -92,6 +92,18 @@ def register_plan(c: Mpu6050Config) -> list[RegisterSetting]:
     ]
 
 
+# The gyro DLPF's group delay per DLPF_CFG 0..6 (RM-MPU-6000A-00 rev 4.2, §4.3, register 26
+# table; docs/chips/mpu6050.md). The simulator keeps its own copy of the table: it models the
+# silicon, not this driver.
+GYRO_DLPF_DELAY_S = (0.98e-3, 1.9e-3, 2.8e-3, 4.8e-3, 8.3e-3, 13.4e-3, 18.6e-3)
+
+
+def group_delay_s(dlpf_hz: int) -> float:
+    """The gyro's DLPF group delay at this bandwidth: what a stamp is moved back by (the
+    accel's differs by at most 0.2 ms, except DLPF off: 0 ms against 0.98)."""
+    return GYRO_DLPF_DELAY_S[R.DLPF_BANDWIDTHS_HZ.index(dlpf_hz)]
+
+
 _NONE = np.zeros((0, 3), dtype=np.int32)
 _FIFO_REGISTERS = (R.Register.FIFO_EN, R.Register.USER_CTRL)  # written by the FIFO restart
 _ACTIONS = R.UserCtrl.FIFO_RESET | R.UserCtrl.I2C_MST_RESET | R.UserCtrl.SIG_COND_RESET
@@ -108,6 +120,7 @@ class Mpu6050Driver:
         self.clock = clock
         self.counters = DriverCounters()
         self.nominal_period_ns = 1e9 / cfg.odr_hz
+        self.group_delay_ns = round(group_delay_s(cfg.dlpf_hz) * 1e9)
         # a quarter of the FIFO between polls keeps it under half full with +-5 % clock error
         self.poll_interval_ns = int(min(50e6, self.nominal_period_ns * self.fifo_capacity / 4))
         self.accel_scale = accel_scale_ms2(cfg.accel_range_g)

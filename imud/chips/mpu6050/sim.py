@@ -20,7 +20,7 @@ from imud.chips.mpu6050.registers import (
 )
 from imud.chips.mpu6050.registers import Register as R
 from imud.clock import Clock
-from imud.sim.chip import SampledChip
+from imud.sim.filters import FilteredChip, SensorFilter, design
 from imud.sim.physics import ChipFigures, quantise
 from imud.sim.settings import SimSettings
 
@@ -39,6 +39,13 @@ FIGURES = ChipFigures(
     accel_temp_drift_mg_per_c=0.5,
     gyro_temp_drift_dps_per_c=0.02,
 )
+
+# The DLPF per DLPF_CFG 0..6: (bandwidth Hz, group delay s), accel at Fs 1 kHz and gyro
+# (RM-MPU-6000A-00 rev 4.2, §4.3, register 26 table; docs/chips/mpu6050.md)
+ACCEL_DLPF = ((260, 0.0), (184, 2.0e-3), (94, 3.0e-3), (44, 4.9e-3), (21, 8.5e-3),
+              (10, 13.8e-3), (5, 19.0e-3))  # fmt: skip
+GYRO_DLPF = ((256, 0.98e-3), (188, 1.9e-3), (98, 2.8e-3), (42, 4.8e-3), (20, 8.3e-3),
+             (10, 13.4e-3), (5, 18.6e-3))  # fmt: skip
 
 # plain ints on the hot path: an operator on an IntFlag builds a new enum member each time
 _DATA_RDY = int(IntStatus.DATA_RDY_INT)
@@ -65,7 +72,7 @@ class ResetInProgress(OSError):
     pass
 
 
-class Mpu6050Sim(SampledChip):
+class Mpu6050Sim(FilteredChip):
     def __init__(self, settings: SimSettings, clock: Clock) -> None:
         super().__init__(settings, clock, FIGURES)
         self.fifo_bytes_dropped = 0
@@ -100,6 +107,29 @@ class Mpu6050Sim(SampledChip):
     def rate_hz(self) -> float:
         """True output rate: nominal internal/(1+div), off by the oscillator error."""
         return self.internal_hz / (1 + self.regs[R.SMPLRT_DIV]) * (1 + self.clock_error)
+
+    _filter_cache: tuple[tuple[int, int], tuple[SensorFilter, SensorFilter]] | None = None
+
+    def filters(self) -> tuple[SensorFilter, SensorFilter]:
+        """The DLPF of DLPF_CFG (register 26 table, docs/chips/mpu6050.md): the gyro's at its
+        internal rate (8 kHz with the DLPF off, 1 kHz on), the accel's at 1 kHz; the table's
+        bandwidth taken as the noise bandwidth (the sheet's 0.05 deg/s RMS at DLPF_CFG 2 is
+        0.005 deg/s/rtHz * sqrt(100 Hz)). With the DLPF off the accel is unfiltered 1 kHz
+        (delay 0) and held over 8 gyro samples."""
+        key = (self.dlpf_cfg, self.regs[R.SMPLRT_DIV])
+        if self._filter_cache is None or self._filter_cache[0] != key:
+            cfg = key[0] if key[0] < 7 else 0
+            m = 1 + key[1]
+            gbw, gdelay = GYRO_DLPF[cfg]
+            abw, adelay = ACCEL_DLPF[cfg]
+            internal = self.internal_hz
+            gyro = design(gbw, gdelay, internal, m)
+            if internal == 8000.0:  # accel at 1 kHz, held: white over its own 500 Hz band
+                accel = design(abw, adelay, internal, m, white_band_hz=500.0)
+            else:
+                accel = design(abw, adelay, internal, m)
+            self._filter_cache = (key, (accel, gyro))
+        return self._filter_cache[1]
 
     @property
     def accel_lsb(self) -> float:

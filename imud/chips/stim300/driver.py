@@ -66,6 +66,7 @@ class Stim300Driver:
         self.lay = layout(cfg.datagram_id, cfg.line_termination)
         self.framer = Framer(self.lay)
         self.nominal_period_ns = 1e9 / cfg.odr_hz
+        self.group_delay_ns = 0  # filter delay not modelled yet (docs/timestamps.md)
         self.fifo_capacity = HOST_BUFFER_BYTES // self.lay.size
         span = self.fifo_capacity * self.nominal_period_ns
         self.poll_interval_ns = int(min(POLL_NS, span / 4))
