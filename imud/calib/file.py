@@ -232,6 +232,31 @@ def now_iso() -> str:
     return dt.datetime.now(dt.UTC).replace(microsecond=0).isoformat().replace("+00:00", "Z")
 
 
+_ESCAPES = {
+    '"': '\\"',
+    "\\": "\\\\",
+    "\b": "\\b",
+    "\t": "\\t",
+    "\n": "\\n",
+    "\f": "\\f",
+    "\r": "\\r",
+}
+
+
+def _char(c: str) -> str:
+    """One character of a TOML basic string: quote and backslash escaped, and every control
+    character (TOML allows none in a string but tab), so any note or source path reads back. A
+    lone surrogate (a file name's undecodable byte) has no escape in TOML: U+FFFD stands in."""
+    if c in _ESCAPES:
+        return _ESCAPES[c]
+    o = ord(c)
+    if o < 0x20 or o == 0x7F:
+        return f"\\u{o:04x}"
+    if 0xD800 <= o <= 0xDFFF:
+        return "\ufffd"
+    return c
+
+
 def _value(v: Any) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
@@ -241,7 +266,7 @@ def _value(v: Any) -> str:
             return str(int(v))
         return repr(f) if math.isfinite(f) else ("nan" if f != f else ("inf" if f > 0 else "-inf"))
     if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+        return '"' + "".join(map(_char, v)) + '"'
     if isinstance(v, list | tuple):
         items = [_value(x) for x in v]
         if any(isinstance(x, list | tuple) for x in v):
