@@ -48,14 +48,15 @@ def _check_accounting(rig: Rig) -> dict[str, np.ndarray]:
     return m
 
 
-def _check_indices(rig: Rig, m: dict[str, np.ndarray]) -> None:
-    """After the first second (the fit settles), seq - truth index is one constant."""
+def _check_indices(rig: Rig, m: dict[str, np.ndarray], spread: int = 0) -> None:
+    """After the first second (the fit settles), seq - truth index is one constant (or within
+    `spread` of one)."""
     late = m["t_ns"] > m["t_ns"][0] + 1_000_000_000
     mm = {k: v[late] for k, v in m.items()}
     t = concat(rig.truth_batches())
     i = match_truth(mm, t)
     offsets = mm["seq"] - t["seq"][i]
-    assert offsets.min() == offsets.max(), np.unique(offsets)[:10]
+    assert offsets.max() - offsets.min() <= spread, np.unique(offsets)[:10]
 
 
 def test_icm_32khz_every_transfer_fault_counted_and_every_gap_exact() -> None:
@@ -80,6 +81,22 @@ def test_i2c_fifo_chips_through_stalls_keep_every_index(device: dict[str, Any]) 
     _check_indices(rig, m)
     faults = rig.bus.faults(device.get("gyro_bus", {"address": 0x68})["address"])
     assert faults is not None and faults.stalls > 0
+
+
+def test_bmi088_spi_fifo_read_failures_resync_rather_than_lose_silently() -> None:
+    """EIO or a timeout on a FIFO read may come after the FIFO gave up its bytes (the simulated
+    bus does exactly that): the driver empties that die's FIFO and the gap is counted from the
+    restart. Neither die has a counter in this mode, so a gap is placed by the host clock,
+    which is exact to a sample: seq - truth may move by one, never more (before the fix: by
+    10 to 23, uncounted)."""
+    spi = {"kind": "sim", "bus": "spi0", "transport": "spi"}
+    device = {"chip": "bmi088", "bus": {**spi, "cs": 0}, "gyro_bus": {**spi, "cs": 1}}
+    rig = _run(device, {"eio_rate": 2e-3, "timeout_rate": 2e-3})
+    m = _check_accounting(rig)
+    _check_indices(rig, m, spread=1)
+    st = rig.runner.status()
+    assert st["bus_errors_eio"] + st["bus_errors_timeout"] > 3
+    assert rig.driver.counters.fifo_resets > 2  # the start's two, and the failed reads'
 
 
 @pytest.mark.parametrize(("device", "period_ns"), [(ICM_32K, 1e9 / 32000), (MPU, 1e6)],

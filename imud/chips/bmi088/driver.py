@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -26,7 +26,7 @@ from imud.chips.bmi088.config import Bmi088Config, is_spi
 from imud.chips.bmi088.pairing import DiePairer
 from imud.chips.regplan import RegisterChecker, RegisterPlan, RegisterSetting
 from imud.clock import Clock
-from imud.errors import BusError, DeviceIdentityError
+from imud.errors import BusError, DeviceIdentityError, ErrorKind, error_kind
 from imud.timestamps import SampleClock, Stamped
 
 A, G = R.AccelRegister, R.GyroRegister
@@ -180,6 +180,18 @@ class Bmi088Driver:
         s = self.gyr_plan.settings[-1]
         self.gyr.write_u8(G.FIFO_CONFIG_1, s.apply(0))  # every bit of it is ours
 
+    def _lost_in_transfer(self, e: BusError, flush: Callable[[], None]) -> bool:
+        """A FIFO read failed. A NAK comes before any byte: the FIFO is as it was and the next
+        poll reads it all. Any other failure may have come after the FIFO gave up bytes, which
+        are gone, possibly mid-frame (gyro frames have no header to find the next one by): empty
+        that FIFO so its next frames are whole and the gap is counted from the restart. True:
+        samples may be lost (the stream resyncs)."""
+        if error_kind(e) is ErrorKind.NAK:
+            return False
+        with contextlib.suppress(BusError):  # if that fails too, the next poll's read says
+            flush()
+        return True
+
     # --- read -------------------------------------------------------------------------------
     def _read_gyro(self) -> None:
         tb = self.clock.now_ns()
@@ -200,7 +212,12 @@ class Bmi088Driver:
                 self._clear_overrun()
             return
         r0 = self.clock.now_ns()
-        data = self.gyr.read(G.FIFO_DATA, n * R.GYRO_FRAME_BYTES)
+        try:
+            data = self.gyr.read(G.FIFO_DATA, n * R.GYRO_FRAME_BYTES)
+        except BusError as e:
+            if self._lost_in_transfer(e, self._flush_gyro):
+                self._g_resync = True  # (with the flush's restart, when the flush went through)
+            raise
         r1 = self.clock.now_ns()
         gyro = d.decode_gyro_fifo(data)
         if overrun:
@@ -230,7 +247,12 @@ class Bmi088Driver:
             self.counters.bad_transfers += 1
             self._flush_accel()
             return
-        data = self.acc.read(A.FIFO_DATA, length)
+        try:
+            data = self.acc.read(A.FIFO_DATA, length)
+        except BusError as e:
+            if self._lost_in_transfer(e, self._flush_accel):
+                self._a_resync = True
+            raise
         fifo = d.decode_accel_fifo(data)
         n = int(fifo.accel.shape[0])
         # frame positions counting the frames skip frames say were overwritten: exact gaps
