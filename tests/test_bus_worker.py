@@ -148,6 +148,7 @@ class Flaky:
         self.nominal_period_ns = inner.nominal_period_ns
         self.poll_interval_ns = inner.poll_interval_ns
         self.fifo_capacity = inner.fifo_capacity
+        self.group_delay_ns = inner.group_delay_ns
         self.counters = inner.counters
 
     def start(self) -> Iterator[int]:

@@ -237,3 +237,20 @@ def test_tracking_is_absent_from_status_when_off() -> None:
     rig = make_rig({"odr_hz": 200}, {"motion": {"kind": "still"}})
     rig.run(0.5)
     assert rig.runner.status()["gyro_bias_tracking"] is None
+
+
+def test_long_run_ratio_sees_the_filter_that_correlates_the_noise() -> None:
+    """White noise: a window's mean scatters as variance / m (ratio 1). Behind an L-tap moving
+    average (a chip's low-pass) the long-run variance is sigma^2 (sum h)^2 = sigma^2 while the
+    sample variance is sigma^2 / L: the mean scatters L times more than variance / m predicts.
+    Without this the tracker took the filtered noise of a still MPU6050 for motion."""
+    from imud.calib.track import long_run_ratio
+
+    rng = np.random.default_rng(1)
+    white = rng.normal(0.0, 1.0, (400, 512, 3))
+    assert np.median(long_run_ratio(white)) == pytest.approx(1.0, abs=0.1)
+    taps = 6
+    x = rng.normal(0.0, 1.0, (400, 512 + taps - 1, 3))
+    c = np.cumsum(np.concatenate([np.zeros((400, 1, 3)), x], axis=1), axis=1)
+    smoothed = (c[:, taps:] - c[:, :-taps]) / taps
+    assert np.median(long_run_ratio(smoothed)) == pytest.approx(taps, rel=0.15)

@@ -12,7 +12,9 @@ thresholds in rad/s that suit one chip and no other:
    recently (the noise floor): motion, vibration or handling raise them.
 2. The window's accel mean agrees with the mean of the still run it would extend (every window
    since the run began), and its gyro mean with the previous window's, within their standard
-   errors (chi-squared tests, 3 degrees of freedom, p = 1e-4). A slow rotation about a
+   errors (chi-squared tests, 3 degrees of freedom, p = 1e-4; a standard error is the window's
+   variance / m times the noise's long-run factor, learned from still windows: a chip's
+   low-pass filter correlates neighbouring samples, so means scatter more). A slow rotation about a
    horizontal axis adds no variance, but turns gravity in the body frame: against the run's
    mean the change accumulates until it shows. The gyro is compared window to window only: its
    bias may drift with temperature during a run, and that drift is what is being tracked.
@@ -102,6 +104,8 @@ class _Stats:
     a_mean: F64 | None
     a_var: F64 | None
     m: int  # samples
+    g_ratio: float = 1.0  # this window's long-run variance ratio (`long_run_ratio`)
+    a_ratio: float = 1.0
 
     def merged(self, w: _Stats) -> _Stats:
         """This run's mean extended by window `w` (variances: the window's own, for the test)."""
@@ -113,19 +117,41 @@ class _Stats:
         return _Stats(g, w.g_var, a, w.a_var, n)
 
 
+BLOCKS = 8  # a window's block means, for the long-run variance of its mean
+CORR_GAIN = 0.1  # how fast the learned correlation factor follows new still windows
+
+
+def long_run_ratio(x: F64) -> F64:
+    """Per window of `x` (windows, samples, axes): the variance of its mean over what the sample
+    variance alone predicts (batch means over `BLOCKS` blocks, axes pooled). A chip's low-pass
+    filter correlates neighbouring samples' noise, so a window's mean scatters more than
+    variance / m: 1 for white noise, about rate / (2 x noise bandwidth) behind a filter."""
+    k, m, _ = x.shape
+    if m < 4 * BLOCKS:
+        return np.ones(k)
+    b = m // BLOCKS
+    means = x[:, : b * BLOCKS].reshape(k, BLOCKS, b, -1).mean(axis=2)
+    long_run = means.var(axis=1, ddof=1).sum(axis=1) * b
+    out: F64 = long_run / np.maximum(x.var(axis=1, ddof=1).sum(axis=1), 1e-30)
+    return out
+
+
 def _chi2(d: F64, var: F64, scale: float) -> float:
     return float(np.sum(d * d / (np.maximum(var, 1e-30) * scale)))
 
 
-def _mean_change(run: _Stats, prev: _Stats, w: _Stats) -> tuple[float, float]:
-    """Chi-squared statistics (3 dof each), with the window's own variance as the noise: of its
-    gyro mean against the previous window's (a turn starting or stopping; the bias itself may
-    drift with temperature over a run, and that is what is being tracked), and of its accel
-    mean against the whole run's (a slow tilt accumulates; 0 when there is no accel)."""
-    chi_g = _chi2(w.g_mean - prev.g_mean, w.g_var, 1.0 / w.m + 1.0 / prev.m)
+def _mean_change(
+    run: _Stats, prev: _Stats, w: _Stats, corr: tuple[float, float]
+) -> tuple[float, float]:
+    """Chi-squared statistics (3 dof each), with the window's own variance as the noise (times
+    the learned correlation factors `corr`, gyro and accel): of its gyro mean against the
+    previous window's (a turn starting or stopping; the bias itself may drift with temperature
+    over a run, and that is what is being tracked), and of its accel mean against the whole
+    run's (a slow tilt accumulates; 0 when there is no accel)."""
+    chi_g = _chi2(w.g_mean - prev.g_mean, w.g_var * corr[0], 1.0 / w.m + 1.0 / prev.m)
     chi_a = 0.0
     if w.a_mean is not None and run.a_mean is not None and w.a_var is not None:
-        chi_a = _chi2(w.a_mean - run.a_mean, w.a_var, 1.0 / w.m + 1.0 / run.m)
+        chi_a = _chi2(w.a_mean - run.a_mean, w.a_var * corr[1], 1.0 / w.m + 1.0 / run.m)
     return chi_g, chi_a
 
 
@@ -144,6 +170,8 @@ class GyroBiasTracker:
         self._pending_n = 0
         self._floor_g: float | None = None
         self._floor_a: float | None = None
+        # the noise's long-run variance factors (gyro, accel), learned from still windows
+        self._corr: tuple[float, float] | None = None
         self._run: _Stats | None = None  # the current still run's means
         self._prev: _Stats | None = None  # its last window
         self._unconfirmed: list[F64] = []  # its windows' gyro means, oldest first
@@ -189,6 +217,8 @@ class GyroBiasTracker:
         g_mean, g_var = gw.mean(axis=1), gw.var(axis=1, ddof=1)
         a_mean = aw.mean(axis=1) if aw is not None else None
         a_var = aw.var(axis=1, ddof=1) if aw is not None else None
+        g_ratio = long_run_ratio(gw).tolist()
+        a_ratio = long_run_ratio(aw).tolist() if aw is not None else [1.0] * k
         rise = 2.0 ** (m * period_s / FLOOR_DOUBLING_S)
         gain = 1.0 - math.exp(-m * period_s / self.settings.time_constant_s)
         confirm = math.ceil(self.settings.confirm_s / (m * period_s) - 1e-9)
@@ -204,6 +234,8 @@ class GyroBiasTracker:
                 None if a_mean is None else a_mean[i],
                 None if a_var is None else a_var[i],
                 m,
+                g_ratio[i],
+                a_ratio[i],
             )
             self._judge(w, rise, gain, confirm)
 
@@ -218,10 +250,19 @@ class GyroBiasTracker:
             quiet = quiet and va <= variance_factor(w.m) * self._floor_a
         return quiet
 
+    def _learn_corr(self, w: _Stats) -> None:
+        """Follow the noise's correlation factors with a window judged still (at least 1: a
+        factor below white noise's is a window's chance)."""
+        r = (max(1.0, w.g_ratio), max(1.0, w.a_ratio))
+        c = self._corr or r
+        self._corr = (c[0] + CORR_GAIN * (r[0] - c[0]), c[1] + CORR_GAIN * (r[1] - c[1]))
+
     def _judge(self, w: _Stats, rise: float, gain: float, confirm: int) -> None:
         quiet = self._quiet(w, rise)
         if self.windows <= LEARN_WINDOWS:
             self.state = TrackState.LEARNING
+            if quiet:
+                self._learn_corr(w)
             return
         run, prev = self._run, self._prev
         if not quiet:
@@ -230,13 +271,14 @@ class GyroBiasTracker:
             return
         self._prev = w
         if run is not None and prev is not None:
-            chi_g, chi_a = _mean_change(run, prev, w)
+            chi_g, chi_a = _mean_change(run, prev, w, self._corr or (1.0, 1.0))
             if chi_g > CHI2_3DOF_P1E4 or chi_a > CHI2_3DOF_P1E4:
                 # the run has ended (it was turning, or something moved it): drop what it has
                 # not confirmed, and start a new run at this window
                 self.state, self._run, self._unconfirmed = TrackState.MOVING, w, []
                 return
         self._run = w if run is None else run.merged(w)
+        self._learn_corr(w)
         self.still_windows += 1
         if float(np.max(np.abs(w.g_mean))) > self.settings.max_rate_rad_s:
             self.state = TrackState.BEYOND_LIMIT
