@@ -78,10 +78,13 @@ def check_batch(b: RawBatch) -> None:
         b = b.then  # type: ignore[assignment]
 
 
-def poll(driver: Any, polls: int) -> list[RawBatch]:
-    """`polls` reads, as the runner does them: a handled error ends a read, not the run."""
+def poll(driver: Any, polls: int, between: Callable[[], object] | None = None) -> list[RawBatch]:
+    """`polls` reads, as the runner does them: a handled error ends a read, not the run.
+    `between`, before each read: e.g. time passing."""
     out = []
     for _ in range(polls):
+        if between is not None:
+            between()
         try:
             b = driver.read()
         except RUNNER_HANDLES:
@@ -347,13 +350,7 @@ def test_bmi088_driver_survives_a_garbage_bus(data: st.DataObject) -> None:
     driver = Bmi088Driver(
         cfg, GarbageRegisters(data, bmi_bus), GarbageRegisters(data, bmi_bus), clock
     )
-    for _ in range(4):
-        clock.advance(data.draw(st.integers(0, 50_000_000)))
-        try:
-            b = driver.read()
-        except RUNNER_HANDLES:
-            continue
-        check_batch(b)
+    poll(driver, 4, lambda: clock.advance(data.draw(st.integers(0, 50_000_000))))
 
 
 # --- ADIS16465 -------------------------------------------------------------------------------
@@ -645,13 +642,7 @@ def test_bno055_driver_survives_garbage_bursts(data: st.DataObject, mode: str) -
     cfg = device_cfg("bno055", mode=mode, save_offsets=False, bus={"kind": "sim", "address": 0x28})
     clock = VirtualClock()
     driver = Bno055Driver(cfg, GarbageRegisters(data, bno_bus), clock)
-    for _ in range(4):
-        clock.advance(data.draw(st.integers(0, 300_000_000)))
-        try:
-            b = driver.read()
-        except RUNNER_HANDLES:
-            continue
-        check_batch(b)
+    poll(driver, 4, lambda: clock.advance(data.draw(st.integers(0, 300_000_000))))
 
 
 # --- the wire format -------------------------------------------------------------------------

@@ -224,6 +224,23 @@ def _gravity_corrected(rec: Recording, cf: CalibrationFile | None, notes: list[s
     return replace(rec, accel=(rec.accel - a.bias) @ a.matrix.T)
 
 
+def _fit_full(
+    rec: Recording,
+    full_turns: bool,
+    min_still_s: float,
+    latitude_deg: float | None,
+    significance: float = 0.01,
+) -> AffineEstimate:
+    """The gyro's full fit from the rotations between the recording's still poses."""
+    from imud.calib.gyro import fit_gyro_full
+    from imud.calib.still import find_still
+
+    poses = find_still(rec, min_still_s)
+    return fit_gyro_full(
+        rec, poses, None, full_turns, latitude_deg=latitude_deg, significance=significance
+    )
+
+
 def gyro_needs_more(
     rec: Recording,
     full_turns: bool,
@@ -234,20 +251,13 @@ def gyro_needs_more(
     """For a live capture: what more the gyro fit needs before it can be formed and every part
     of C determined (None: nothing, or the sensor has been still all along, which is a bias
     capture). A capture on a bench goes on until then."""
-    from imud.calib.gyro import fit_gyro_full
-    from imud.calib.still import CalibrationRefused, check_still, find_still
+    from imud.calib.still import CalibrationRefused, check_still
 
     rec = _gravity_corrected(rec, cf, [])
     try:
         if check_still(rec).still:
             return None
-        est = fit_gyro_full(
-            rec,
-            find_still(rec, min_still_s),
-            None,
-            full_turns,
-            latitude_deg=latitude_deg,
-        )
+        est = _fit_full(rec, full_turns, min_still_s, latitude_deg)
     except CalibrationRefused as e:
         return str(e)
     weak = est.fit.details.get("undetermined")
@@ -266,8 +276,8 @@ def run_gyro(
     (from the poses) and the full matrix. The file's accelerometer calibration, when there is
     one, corrects the gravity directions first, so the gyro lands in the calibrated frame.
     With the latitude, Earth's rotation is modelled (imud/calib/gyro.py)."""
-    from imud.calib.gyro import fit_gyro_bias, fit_gyro_full
-    from imud.calib.still import check_still, find_still
+    from imud.calib.gyro import fit_gyro_bias
+    from imud.calib.still import check_still
 
     notes: list[str] = []
     rec = _gravity_corrected(rec, cf, notes)
@@ -280,14 +290,7 @@ def run_gyro(
                 "misalignment enter the gravity directions the rotations are checked against "
                 "(calibrate accel first, into the same file)"
             )
-        est = fit_gyro_full(
-            rec,
-            find_still(rec, min_still_s),
-            None,
-            full_turns,
-            latitude_deg=latitude_deg,
-            significance=significance,
-        )
+        est = _fit_full(rec, full_turns, min_still_s, latitude_deg, significance)
     report = affine_report(est)
     report["notes"] = notes
     d = est.fit.details
