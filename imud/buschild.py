@@ -25,7 +25,16 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from imud.busmsg import HEADER, PUBLISH, RAW_WANTED, STATUS
+from imud.busmsg import (
+    APPLIED,
+    GENERATION,
+    HEADER,
+    PUBLISH,
+    RAW_WANTED,
+    RECONFIGURE,
+    RECV_MAX,
+    STATUS,
+)
 from imud.busworker import BusWorker, build_workers
 from imud.clock import MonotonicClock
 from imud.config import parse_config
@@ -51,8 +60,11 @@ def _sender(sock: socket.socket, index: int, kind: int, on_drop: Callable[[], No
 
 def _report(sock: socket.socket, worker: BusWorker) -> None:
     while not worker.stop.wait(STATUS_EVERY_S):
-        body = {"heartbeat_ns": worker.heartbeat_ns,
-                "devices": [r.status() for r in worker.runners]}  # fmt: skip
+        generation, runners = worker.generation, worker.runners
+        devices = [r.status() for r in runners]
+        if worker.generation != generation:  # the device list changed meanwhile: next time
+            continue
+        body = {"heartbeat_ns": worker.heartbeat_ns, "generation": generation, "devices": devices}
         try:
             sock.send(STATUS + json.dumps(body).encode(), socket.MSG_DONTWAIT)
         except BlockingIOError:
@@ -62,18 +74,32 @@ def _report(sock: socket.socket, worker: BusWorker) -> None:
 
 
 def _listen(sock: socket.socket, worker: BusWorker) -> None:
-    """The daemon's requests: start or stop computing a device's uncorrected stream."""
+    """The daemon's requests: start or stop computing a device's uncorrected stream; a
+    reloaded config."""
     while not worker.stop.is_set():
         try:
-            msg = sock.recv(64)
+            msg = sock.recv(RECV_MAX)
         except OSError:
             return
         if not msg:
             return  # the daemon closed its end; the sender notices and stops us
         if msg[:1] == RAW_WANTED and len(msg) == HEADER.size:
             _, index, on = HEADER.unpack(msg)
-            if index < len(worker.runners):
-                worker.runners[index].want_raw(bool(on))
+            runners = worker.runners
+            if index < len(runners):
+                runners[index].want_raw(bool(on))
+        elif msg[:1] == RECONFIGURE:
+            cfg = parse_config(json.loads(msg[1:])["config"])
+            worker.reconfigure([d for d in cfg.device if d.bus.key == worker.key])
+
+
+def _acknowledge(sock: socket.socket) -> Callable[[BusWorker], None]:
+    def applied(worker: BusWorker) -> None:
+        # blocking: the daemon must see it before any batch under the new device indices
+        with contextlib.suppress(OSError):
+            sock.send(APPLIED + GENERATION.pack(worker.generation))
+
+    return applied
 
 
 def child_main(fd: int, spec: dict[str, Any]) -> int:
@@ -90,6 +116,7 @@ def child_main(fd: int, spec: dict[str, Any]) -> int:
         return _sender(sock, index, kind, on_drop)
 
     (worker,) = build_workers(cfg, MonotonicClock(), offset, publish_for, only_bus=spec["bus"])
+    worker.on_reconfigured = _acknowledge(sock)
     for index, (next_seq, last_t_ns) in spec.get("resume", {}).items():
         worker.runners[int(index)].resume(int(next_seq), int(last_t_ns) - offset)
     for index in spec.get("raw", []):

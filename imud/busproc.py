@@ -25,7 +25,17 @@ from collections.abc import Callable
 from typing import Any
 
 from imud.backoff import Backoff
-from imud.busmsg import HEADER, KIND_DATA, PUBLISH, RAW_WANTED, RECV_MAX, STATUS
+from imud.busmsg import (
+    APPLIED,
+    GENERATION,
+    HEADER,
+    KIND_DATA,
+    PUBLISH,
+    RAW_WANTED,
+    RECONFIGURE,
+    RECV_MAX,
+    STATUS,
+)
 from imud.chips.api import DeviceBase
 from imud.errors import BUS_ERROR_KEYS
 from imud.status import DeviceState, initial_status
@@ -39,7 +49,7 @@ HUNG_S = 10.0  # no progress from the bus worker for this long: kill and restart
 _WIRE_HEAD = struct.Struct("<6xHQI")  # name_len, first_seq, count: the head of imud.wire
 _COUNTERS = (
     "samples", "lost_samples", "invalid_samples", "fifo_overflows", "bus_errors",
-    "bad_registers", "restarts", "unexpected_errors", "publish_dropped",
+    "bad_registers", "restarts", "resets", "unexpected_errors", "publish_dropped",
     "calibration_outside_span", "garbled_transfers", *BUS_ERROR_KEYS.values(),
 )  # fmt: skip
 
@@ -57,9 +67,11 @@ class RunnerProxy:
         self._restarts = 0  # process restarts
         self.next_seq: int | None = None
         self.last_t_ns = 0
+        self.raw_wanted = False
         self.on_want_raw: Callable[[bool], None] = lambda on: None
 
     def want_raw(self, on: bool) -> None:
+        self.raw_wanted = on
         self.on_want_raw(on)
 
     def status(self) -> dict[str, Any]:
@@ -117,12 +129,12 @@ class BusProcess:
         puts: list[tuple[Put, Put | None, Put]],
     ) -> None:
         self.key = key
-        self.runners = [RunnerProxy(d) for d in devices]
-        for i, r in enumerate(self.runners):
-            r.on_want_raw = lambda on, i=i: self.want_raw(i, on)  # type: ignore[misc]
+        self.runners = self._proxies([RunnerProxy(d) for d in devices])
         self.spec = {**spec, "bus": key}
         self.puts = puts  # per device, by kind: (data put, truth put or None, raw put)
-        self.raw_wanted: set[int] = set()
+        # a reloaded config's device list, until the child says it applied it
+        self._pending: tuple[list[RunnerProxy], list[tuple[Put, Put | None, Put]]] | None = None
+        self._generation = 0  # of the child's device list the relay maps indices with
         self._sock: socket.socket | None = None
         self.stop = threading.Event()
         self.heartbeat_ns = time.monotonic_ns()  # the relay's own progress
@@ -132,17 +144,63 @@ class BusProcess:
         self.restarts = 0
         self.last_error: str | None = None
 
+    def _proxies(self, proxies: list[RunnerProxy]) -> list[RunnerProxy]:
+        for i, r in enumerate(proxies):
+            r.on_want_raw = lambda on, i=i: self.want_raw(i, on)  # type: ignore[misc]
+        return proxies
+
     def want_raw(self, index: int, on: bool) -> None:
         """Someone started or stopped subscribing to a device's raw stream: tell the child (a
-        child started later is told in its spec)."""
-        (self.raw_wanted.add if on else self.raw_wanted.discard)(index)
+        child started later is told in its spec; a reload's new list, once applied)."""
         sock = self._sock
-        if sock is not None:
+        if sock is not None and self._pending is None:
             # a child that is gone or going cannot hear it: its successor reads the spec
             with contextlib.suppress(OSError):
                 sock.send(HEADER.pack(RAW_WANTED, index, int(on)), socket.MSG_DONTWAIT)
 
+    def reconfigure(
+        self,
+        devices: list[DeviceBase],
+        config: dict[str, Any],
+        puts: list[tuple[Put, Put | None, Put]],
+        raw_on: set[str],
+    ) -> None:
+        """A reloaded config (`config`, JSON-ready) puts `devices` on this bus: the child keeps
+        the unchanged ones running and restarts, starts or stops the rest. Its batches keep the
+        old device indices until it acknowledges; a child started from now on gets the new
+        config in its spec."""
+        old = {r.cfg.name: r for r in self.runners}
+        proxies: list[RunnerProxy] = []
+        for d in devices:
+            prev = old.get(d.name)
+            if prev is not None and prev.cfg == d:
+                proxies.append(prev)
+                continue
+            p = RunnerProxy(d)
+            p.raw_wanted = d.name in raw_on
+            if prev is not None:  # restarted: its stream's seq continues
+                p.next_seq, p.last_t_ns = prev.next_seq, prev.last_t_ns
+            proxies.append(p)
+        self._pending = (proxies, puts)
+        self.spec["config"] = config
+        sock = self._sock
+        if sock is not None:
+            with contextlib.suppress(OSError):  # gone: its successor starts from the spec
+                sock.send(RECONFIGURE + json.dumps({"config": config}).encode())
+
+    def _take_pending(self, generation: int) -> None:
+        pending, self._pending = self._pending, None
+        self._generation = generation
+        if pending is None:
+            return
+        proxies, self.puts = pending
+        self.runners = self._proxies(proxies)
+        for i, r in enumerate(self.runners):  # the child's new runners start without raw
+            if r.raw_wanted:
+                self.want_raw(i, True)
+
     def _spawn(self) -> socket.socket:
+        self._take_pending(0)  # a new child starts from the spec's config, generation 0
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         resume = {
             str(i): [r.next_seq, r.last_t_ns]
@@ -156,7 +214,7 @@ class BusProcess:
                 pass_fds=[theirs.fileno()],
             )
         assert self.proc.stdin is not None
-        raw = sorted(self.raw_wanted)
+        raw = [i for i, r in enumerate(self.runners) if r.raw_wanted]
         self.proc.stdin.write(json.dumps({**self.spec, "resume": resume, "raw": raw}).encode())
         self.proc.stdin.close()
         self.heartbeat_ns = self.worker_heartbeat_ns = time.monotonic_ns()
@@ -189,8 +247,12 @@ class BusProcess:
             elif msg[:1] == STATUS:
                 body = json.loads(msg[1:])
                 self.worker_heartbeat_ns = int(body["heartbeat_ns"]) or time.monotonic_ns()
-                for r, st in zip(self.runners, body["devices"], strict=True):
-                    r.update(st)
+                if int(body.get("generation", 0)) == self._generation:
+                    for r, st in zip(self.runners, body["devices"], strict=True):
+                        r.update(st)
+            elif msg[:1] == APPLIED:
+                (generation,) = GENERATION.unpack_from(msg, 1)
+                self._take_pending(generation)
         return None
 
     def run(self) -> None:

@@ -51,6 +51,55 @@ class BusWorker:
     realtime: bool = False
     reopen: Backoff = field(default_factory=lambda: Backoff(RETRY_MIN_NS, RETRY_MAX_NS))
     calibrations: CalibrationWatcher | None = None
+    # what makes a new runner (a reloaded config adds or changes a device on this bus)
+    make_runner: Callable[[int, DeviceBase], DeviceRunner] | None = None
+    rebind: Callable[[int, DeviceRunner], None] | None = None
+    # bumped each time the device list changes; a bus process's status and acks carry it
+    generation: int = 0
+    on_reconfigured: Callable[[BusWorker], None] | None = None
+    _pending: list[DeviceBase] | None = None
+    _pending_lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def reconfigure(self, devices: list[DeviceBase]) -> None:
+        """A reloaded config's devices for this bus (safe from any thread): applied by the
+        worker between two steps, so no transfer is cut and no batch of a kept device is lost."""
+        with self._pending_lock:
+            self._pending = list(devices)
+
+    def _apply_pending(self) -> None:
+        with self._pending_lock:
+            devices, self._pending = self._pending, None
+        if devices is None:
+            return
+        assert self.make_runner is not None and self.rebind is not None
+        old = {r.cfg.name: (r, c) for r, c in zip(self.runners, self.connectors, strict=True)}
+        runners: list[DeviceRunner] = []
+        connectors: list[Connect] = []
+        for index, d in enumerate(devices):
+            kept = old.pop(d.name, None)
+            if kept is not None and kept[0].cfg == d:
+                r, conn = kept  # unchanged: it goes on streaming, its chip untouched
+                self.rebind(index, r)
+            else:
+                r, conn = self.make_runner(index, d), connector(d, self.clock)
+                if kept is not None:  # changed: restart it, its stream's seq continuing
+                    kept[0].stop()
+                    if kept[0].stream_end is not None:
+                        r.resume(*kept[0].stream_end)
+                    log.info("%s: restarting with its new settings", d.name)
+                else:
+                    log.info("%s: added", d.name)
+            runners.append(r)
+            connectors.append(conn)
+        for r, _ in old.values():
+            r.stop()
+            log.info("%s: removed", r.cfg.name)
+        self.runners, self.connectors = runners, connectors
+        self.generation += 1
+        if self.calibrations is not None:
+            self.calibrations.watch(list(runners))
+        if self.on_reconfigured is not None:
+            self.on_reconfigured(self)
 
     def _bus_failed(self, e: Exception, now: int) -> None:
         wait = self.reopen.failed(now)
@@ -101,8 +150,12 @@ class BusWorker:
 
     def run_once(self) -> int:
         """One scheduling decision: run the step that is due, or say how long to wait (ns)."""
+        if self._pending is not None:
+            self._apply_pending()
         now = self.clock.now_ns()
         self.heartbeat_ns = now
+        if not self.runners:  # every device of this bus removed by a reload
+            return MAX_WAIT_NS
         if not self.ensure_bus(now):
             return max(1, min(self.reopen.due_ns - now, MAX_WAIT_NS))
         due = min((r for r in self.runners if r.driver is not None), key=lambda r: r.next_due_ns)
@@ -182,6 +235,19 @@ def build_workers(
     runner its publish callables (a queue to the Zenoh publisher thread, or the socket to the
     daemon process)."""
     workers: dict[str, BusWorker] = {}
+
+    def make_runner(index: int, d: DeviceBase) -> DeviceRunner:
+        runner = DeviceRunner(d, None, None, lambda _: None, offset_ns, now_ns=clock.now_ns)
+        rebind(index, runner)
+        return runner
+
+    def rebind(index: int, runner: DeviceRunner) -> None:
+        d = runner.cfg
+        runner.publish = publish_for(index, d, KIND_DATA, runner.note_publish_drop)
+        runner.publish_raw = publish_for(index, d, KIND_RAW, runner.note_publish_drop)
+        truth = isinstance(d.bus, SimBus) and d.sim is not None and d.sim.truth
+        runner.publish_truth = publish_for(index, d, KIND_TRUTH, lambda: None) if truth else None
+
     for d in cfg.device:
         key = d.bus.key
         if only_bus is not None and key != only_bus:
@@ -190,13 +256,8 @@ def build_workers(
         if w is None:
             w = workers[key] = BusWorker(key, [], [], opener(d), clock)
             w.realtime_priority = cfg.daemon.realtime_priority
-        index = len(w.runners)
-        runner = DeviceRunner(d, None, None, lambda _: None, offset_ns, now_ns=clock.now_ns)
-        runner.publish = publish_for(index, d, KIND_DATA, runner.note_publish_drop)
-        runner.publish_raw = publish_for(index, d, KIND_RAW, runner.note_publish_drop)
-        if isinstance(d.bus, SimBus) and d.sim is not None and d.sim.truth:
-            runner.publish_truth = publish_for(index, d, KIND_TRUTH, lambda: None)
-        w.runners.append(runner)
+            w.make_runner, w.rebind = make_runner, rebind
+        w.runners.append(make_runner(len(w.runners), d))
         w.connectors.append(connector(d, clock))
     for w in workers.values():
         w.calibrations = CalibrationWatcher(list(w.runners))

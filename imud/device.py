@@ -92,6 +92,7 @@ class DeviceRunner:
         self.bus_errors = 0
         self.bus_errors_by_kind = dict.fromkeys(ErrorKind, 0)
         self.restarts = 0
+        self.resets = 0  # chip resets detected (a configured register found changed)
         self.unexpected_errors = 0
         self.batches = 0
         self.temperature_c: float | None = None
@@ -112,6 +113,9 @@ class DeviceRunner:
         self._loss_logged_ns = -(10**12)
         self._traced: str | None = None  # the unexpected error last logged with its traceback
         self._resume: tuple[int, int] | None = None
+        # (next seq, last stamp less the epoch offset) of what was published: where a
+        # successor (this device restarted with new settings by a reload) continues
+        self.stream_end: tuple[int, int] | None = None
 
     def set_calibration(self, model: CalibrationModel | None, error: str | None) -> None:
         """A (re)loaded calibration file, or why it cannot be applied (the device then runs
@@ -258,6 +262,7 @@ class DeviceRunner:
                 raw = raw.then
         except RegisterMismatch as e:
             self.restarts += 1
+            self.resets += 1
             self._error(str(e))
             log.warning("%s: %s", self.cfg.name, e)
             self.state = DeviceState.STARTING
@@ -314,6 +319,7 @@ class DeviceRunner:
                     encode(self.cfg.name, seq, t_ns, raw, sf, flags=uncorrected, lost_before=lost)
                 )
             self._unpublished_lost = 0
+            self.stream_end = (seq + end - start, int(t_ns[-1]) - self.epoch_offset_ns)
             run_end = end
             self.samples += end - start
             self.batches += 1
@@ -418,6 +424,7 @@ class DeviceRunner:
             "garbled_transfers": c.bad_transfers if c else 0,
             "bad_registers": c.bad_registers if c else 0,
             "restarts": self.restarts,
+            "resets": self.resets,
             "unexpected_errors": self.unexpected_errors,
             "poll_late_max_ms": round(self.poll_late_max_ns / 1e6, 3),
             "publish_dropped": self.publish_dropped,

@@ -43,6 +43,7 @@ def initial_status(cfg: DeviceBase) -> dict[str, Any]:
         "garbled_transfers": 0,  # read whole, found corrupt by the driver (CRC, checksum)
         "bad_registers": 0,
         "restarts": 0,
+        "resets": 0,  # chip resets detected by the register re-check (re-initialised)
         "unexpected_errors": 0,
         "poll_late_max_ms": 0.0,
         "publish_dropped": 0,

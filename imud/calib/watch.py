@@ -55,9 +55,15 @@ class CalibrationWatcher:
         self.devices = [d for d in devices if d.cfg.calibration is not None]
         self._seen: dict[str, Signature] = {}
         self._thread: threading.Thread | None = None
+        self._stop: threading.Event | None = None
+        self._lock = threading.Lock()
 
     def check(self) -> None:
         """Load every file that changed (or appeared, or went away) since the last check."""
+        with self._lock:  # the watcher thread, and the worker when a reload changes devices
+            self._check()
+
+    def _check(self) -> None:
         for d in self.devices:
             path = d.cfg.calibration
             assert path is not None
@@ -73,9 +79,23 @@ class CalibrationWatcher:
             elif not first:
                 log.info("%s: calibration reloaded from %s", d.cfg.name, path)
 
+    def watch(self, devices: list[Calibrated]) -> None:
+        """A reloaded config's devices: a new or restarted device's file is loaded now (before
+        its first sample), a kept device's model stays as it is."""
+        devices = [d for d in devices if d.cfg.calibration is not None]
+        kept = {id(d) for d in self.devices}
+        for d in devices:
+            if id(d) not in kept:
+                self._seen.pop(d.cfg.name, None)
+        self.devices = devices
+        self.check()
+        if self._stop is not None:
+            self.start(self._stop)
+
     def start(self, stop: threading.Event) -> None:
         """Check in a thread of its own until `stop` is set (loading never delays a poll)."""
-        if not self.devices:
+        self._stop = stop
+        if not self.devices or self._thread is not None:
             return
 
         def loop() -> None:

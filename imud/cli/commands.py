@@ -12,6 +12,7 @@ import os
 import sys
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import click
@@ -74,7 +75,7 @@ def run(config_path: str, log_level: str) -> None:
     setup_logging(log_level)
     for handler in logging.getLogger().handlers:
         handler.addFilter(CleanZenohMessages())
-    daemon = Daemon(cfg)
+    daemon = Daemon(cfg, config_path=Path(config_path).resolve())
     try:
         code = anyio.run(daemon.run)
     except KeyboardInterrupt:  # before the daemon's own signal handling is in place

@@ -63,6 +63,7 @@ _NOTES = (
     ("invalid_samples", "invalid samples", None),
     ("bad_registers", "bad registers", None),
     ("restarts", "restarts", None),
+    ("resets", "chip resets", None),
     ("unexpected_errors", "unexpected errors", None),
     ("publish_dropped", "publish drops", None),
     ("calibration_outside_span", "samples outside the calibration's temperature span", None),
@@ -110,8 +111,18 @@ def status_view(st: dict[str, Any], endpoint: str, console: Console) -> list[Ren
             break
         cols.remove(drop)
         table = _table(devices, cols)
-    out: list[RenderableType] = [cut(Text(head), width), table]
+    out: list[RenderableType] = [cut(Text(head), width)]
     now = time.time()
+    if st.get("config_error"):  # a reload refused: the daemon runs the config it had
+        at = st.get("config_error_at")
+        when = f" {_ago(now - at)} ago" if isinstance(at, int | float) else ""
+        out.append(Text(f"config reload failed{when}; running the previous config:", style="red"))
+        out.extend(
+            cut(Text(f"  {line}", style="red"), width) for line in st["config_error"].splitlines()
+        )
+    if st.get("restart_needed"):
+        out.append(cut(Text(st["restart_needed"], style="yellow"), width))
+    out.append(table)
     for d in devices:
         parts = [f"{d[k]} {label}" for k, label, col in _NOTES if d.get(k) and col not in cols]
         kinds = [f"{k.split('_')[-1]} {d[k]}" for k in BUS_ERROR_KEYS.values() if d.get(k)]
