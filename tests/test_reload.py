@@ -263,3 +263,44 @@ def test_zenoh_change_reopens_the_session(tmp_path: Path) -> None:
         assert bs and bs[0].device == "a"
     finally:
         d.stop()
+
+
+def test_reload_in_thread_mode(tmp_path: Path) -> None:
+    """`bus_processes = false`: the same difference applied to worker threads in the daemon
+    process, where the runners themselves can be looked at."""
+    from imud.config import load_config
+    from imud.daemon import Daemon
+    from tests.helpers import free_port, run_in_process
+
+    path = tmp_path / "imud.toml"
+    head = f'[daemon]\nbus_processes = false\n[zenoh]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n'
+    path.write_text(head + body("a", "b", "c"))
+    daemon = Daemon(load_config(path), config_path=path)
+    seen: dict[str, Any] = {}
+
+    def runner(name: str) -> Any:
+        return next((r for r in daemon.runners if r.cfg.name == name), None)
+
+    def drive() -> None:
+        try:
+            wait_for("a, b, c running", lambda: len(daemon.runners) == 3 and runner("b").samples)
+            seen["a"], seen["b"] = runner("a"), runner("b")
+            path.write_text(head + body("a", "b", "e", b_odr=100))  # c out, e on a new bus
+            daemon.request_reload()
+            wait_for("the reload", lambda: daemon.reloads == 1)
+            wait_for("b restarted and e running", lambda: runner("e") and runner("e").samples)
+            wait_for("b at 100 Hz", lambda: runner("b").samples > 20)
+            seen["after"] = {r.cfg.name: r for r in daemon.runners}
+            seen["buses"] = sorted(w.key for w in daemon.workers)
+            seen["status"] = daemon.status()
+        finally:
+            daemon.request_stop()
+
+    run_in_process(daemon, drive)
+    after = seen["after"]
+    assert sorted(after) == ["a", "b", "e"]
+    assert after["a"] is seen["a"]  # the very same runner: never stopped
+    assert after["b"] is not seen["b"] and after["b"].cfg.odr_hz == 100
+    assert seen["b"].state == "stopped"
+    assert seen["buses"] == ["sim:s0", "sim:s2"]  # s1 had only c: its worker stopped
+    assert seen["status"]["config_error"] is None and seen["status"]["reloads"] == 1
