@@ -6,9 +6,13 @@ chip's saved offsets)."""
 from __future__ import annotations
 
 import contextlib
+import glob
 import os
 import tempfile
+import time
 from pathlib import Path
+
+STALE_S = 600.0  # a temporary file this old is a killed writer's leftover, not a live write
 
 
 def write_atomic(path: Path, text: str) -> None:
@@ -25,8 +29,20 @@ def write_atomic(path: Path, text: str) -> None:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+    _remove_leftovers(path)
     dfd = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY)
     try:
         os.fsync(dfd)  # the rename itself is durable only once the directory is
     finally:
         os.close(dfd)
+
+
+def _remove_leftovers(path: Path) -> None:
+    """Temporary files of `path` that a writer killed between creating and renaming them left
+    behind (a kill cannot run the cleanup above). Only old ones: a young one may be another
+    process's write in progress."""
+    cutoff = time.time() - STALE_S
+    for p in path.parent.glob(f".{glob.escape(path.name)}.*.tmp"):
+        with contextlib.suppress(OSError):  # gone already, or not ours to remove
+            if p.is_file() and p.stat().st_mtime < cutoff:
+                p.unlink()

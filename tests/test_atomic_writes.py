@@ -111,3 +111,27 @@ def test_a_recording_killed_mid_write_is_old_or_new(tmp_path: Path) -> None:
     # are the unfinished temporary files beside it, named so nothing mistakes them for one
     for left in tmp_path.iterdir():
         assert left == path or (left.name.startswith(".rec.csv.") and left.suffix == ".tmp")
+
+
+def test_a_killed_writers_leftover_is_removed_by_the_next_write(tmp_path: Path) -> None:
+    """A SIGKILL between creating the temporary file and renaming it leaves `.NAME.*.tmp`
+    behind; the next write of the same file removes such leftovers once they are old enough
+    not to be another writer's write in progress, and nothing else."""
+    import os
+
+    from imud.atomicfile import STALE_S, write_atomic
+
+    target = tmp_path / "imu[0].cal.toml"  # a name with glob metacharacters
+    old = tmp_path / f".{target.name}.abc123.tmp"
+    young = tmp_path / f".{target.name}.def456.tmp"
+    other = tmp_path / ".other.cal.toml.zzz.tmp"
+    for p in (old, young, other):
+        p.write_text("half a file")
+    long_ago = time.time() - 2 * STALE_S
+    for p in (old, other):
+        os.utime(p, (long_ago, long_ago))
+    write_atomic(target, "version = 2\n")
+    assert target.read_text() == "version = 2\n"
+    assert not old.exists()  # a leftover: removed
+    assert young.exists()  # may be a write in progress: kept
+    assert other.exists()  # another file's: not ours
