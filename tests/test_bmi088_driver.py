@@ -106,10 +106,11 @@ def test_constant_rotation_about_z_reads_1_745_rad_s_with_noise() -> None:
     rig.run(3.0)
     m, t = _settled(rig)
     assert m["gyro"][:, 2].mean() == pytest.approx(1.745329, abs=1e-3)
-    sigma_g = math.radians(0.014) * math.sqrt(2000)
+    # one-sided density over the 532 Hz filter's noise band, 1.22 x its bandwidth (Bosch)
+    sigma_g = math.radians(0.014) * math.sqrt(1.22 * 532)
     assert (m["gyro"] - t["gyro"]).std(axis=0) == pytest.approx([sigma_g] * 3, rel=0.1)
     # interpolation between two noisy accel samples averages them: less noise, never more
-    sigma_a = 175e-6 * G * math.sqrt(1600)
+    sigma_a = 175e-6 * G * math.sqrt(1600 / 2)
     da = (m["accel"] - t["accel"]).std(axis=0)
     assert np.all(da < sigma_a * 1.05) and np.all(da > sigma_a * 0.6)
 

@@ -14,13 +14,24 @@ import math
 import numpy as np
 import pytest
 
+from imud.chips.adis16465.driver import Adis16465Driver
+from imud.chips.adis16465.registers import Register as AdisReg
+from imud.chips.adis16465.sim import Adis16465Sim
 from imud.chips.mpu6050.driver import group_delay_s
 from imud.chips.mpu6050.registers import DLPF_BANDWIDTHS_HZ
 from imud.chips.mpu6050.registers import Register as R
 from imud.chips.mpu6050.sim import Mpu6050Sim
+from imud.chips.stim300.driver import GYRO_GROUP_DELAY_S as STIM300_GYRO_DELAY_S
+from imud.chips.stim300.sim import Stim300Sim
 from imud.clock import VirtualClock
+from imud.config import parse_config
 from imud.sim.settings import SimSettings
+from imud.wire import decode
 from tests.helpers import concat, make_rig, match_truth
+from tests.test_stim300_sim import rig as stim_rig
+from tests.test_stim300_sim import run as stim_run
+
+ADIS_SPI = {"kind": "sim", "transport": "spi", "speed_hz": 2_000_000}
 
 F0 = 2.0  # Hz, the rate's frequency
 AMP = math.radians(100.0)
@@ -102,3 +113,112 @@ def test_mpu6050_stamps_mean_the_instant_of_the_motion() -> None:
     # and the stamps' shift is the table's 2.8 ms on the fitted chip clock
     assert rig.runner.pipeline is not None
     assert rig.runner.pipeline.delay_ns(1e9 / 505.5) == pytest.approx(2.8e6 / 1.011, abs=1e3)
+
+
+# TS1524 rev.31 Table 5-3: the STIM300 gyro's group delay per filter (-3 dB, Hz)
+STIM300_GYRO = [(262, 2.2e-3), (131, 3.7e-3), (66, 6.7e-3), (33, 12.7e-3), (16, 24.7e-3)]
+
+
+@pytest.mark.parametrize(("filter_hz", "delay_s"), STIM300_GYRO)
+def test_stim300_simulated_gyro_is_delayed_by_the_filter_table(
+    filter_hz: int, delay_s: float
+) -> None:
+    clock = VirtualClock()
+    sim = Stim300Sim(SimSettings(seed=3, errors={"ideal": True, "gyro_noise_dps_rthz": 0.0}),
+                     clock, odr_hz=500, filter_hz=filter_hz)  # fmt: skip
+    sim.motion = SineRate()  # type: ignore[assignment]
+    out: list[tuple[np.ndarray, np.ndarray]] = []
+    sim._emit = lambda t, fm, wm, temp: out.append((t, wm))  # type: ignore[method-assign]
+    clock.advance(2_000_000_000)
+    sim.advance()
+    t_ns = np.concatenate([o[0] for o in out])
+    wm = np.concatenate([o[1] for o in out])
+    assert delay_of((t_ns - sim.t_origin_ns) / 1e9, wm) == pytest.approx(delay_s, abs=1e-6)
+    assert STIM300_GYRO_DELAY_S[filter_hz] == delay_s  # the driver declares the same
+
+
+def test_stim300_stamps_mean_the_instant_of_the_motion() -> None:
+    """33 Hz filter (12.7 ms, 25 periods at 2000/s) on a unit 0.8 % slow: through the driver's
+    datagram brackets and the pipeline, the stamps are the truth's instants."""
+    cfg, clock, sim, _, runner, out, truth = stim_rig(
+        {"errors": {"ideal": True, "gyro_noise_dps_rthz": 0.0}, "clock_error": -0.008,
+         "seed": 14}, filter_hz=33
+    )  # fmt: skip
+    assert cfg.filter_hz == 33
+    sim.filter_hz = 33  # the rig builds the unit at its default filter: set it as configured
+    sim._filter_cache = None
+    sim.motion = SineRate()
+    stim_run(clock, runner, 4.0)
+    m = concat([decode(b) for b in out])
+    t = concat([decode(b) for b in truth])
+    settled = m["t_ns"] > m["t_ns"][0] + 2e9
+    i = match_truth(m, t)
+    period = 1e9 / (2000 * 0.992)
+    err = (m["t_ns"] - t["t_ns"][i])[settled]
+    # the filter's 12.7 ms (25 periods) is gone; what remains (~0.1 period) is the datagram
+    # brackets' own, the same at every filter setting
+    assert abs(err.mean()) < 0.2 * period
+    t_s = (m["t_ns"][settled] - sim.t_origin_ns) / 1e9
+    assert abs(delay_of(t_s, m["gyro"][settled])) < 0.2 * period / 1e9
+
+
+# ADIS16465 Rev. B: the Bartlett window of FILT_CTRL = B (two 2^B-sample averages, 2^B - 1
+# samples of delay) and the DEC_RATE average of D = DEC_RATE + 1 samples ((D - 1) / 2), at the
+# internal 2000 Hz: (B, DEC_RATE, delay in s)
+ADIS_DELAYS = [(0, 0, 0.0), (2, 0, 3 / 2000), (3, 1, 7.5 / 2000), (5, 3, 32.5 / 2000)]
+
+
+@pytest.mark.parametrize(("filt", "dec_rate", "delay_s"), ADIS_DELAYS)
+def test_adis16465_simulated_outputs_are_delayed_by_their_filters(
+    filt: int, dec_rate: int, delay_s: float
+) -> None:
+    clock = VirtualClock()
+    sim = Adis16465Sim(SimSettings(seed=3, errors={"ideal": True, "gyro_noise_dps_rthz": 0.0}),
+                       clock)  # fmt: skip
+    sim.motion = SineRate()  # type: ignore[assignment]
+    sim.words[AdisReg.FILT_CTRL >> 1] = filt
+    sim.words[AdisReg.DEC_RATE >> 1] = dec_rate
+    sim._anchor(clock.now_ns())
+    got: list[tuple[np.ndarray, np.ndarray]] = []
+    make = sim._make_block
+
+    def keep() -> None:
+        make()
+        k = np.asarray(sim._block.k, dtype=np.float64)
+        t_s = (sim.grid_origin_ns + k * 1e9 / sim.rate_hz - sim.t_origin_ns) / 1e9
+        words = sim._block.rows[:, 1:6:2]  # X/Y/Z_GYRO_OUT, the 16-bit words
+        got.append((t_s, words))
+
+    sim._make_block = keep  # type: ignore[method-assign]
+    clock.advance(2_000_000_000)
+    sim.advance()
+    t_s = np.concatenate([g[0] for g in got])
+    out = np.concatenate([g[1] for g in got]).astype(np.int16).astype(np.float64)
+    gyro = np.radians(out * 2000 / 20000)  # -3: 10 LSB per deg/s
+    assert delay_of(t_s, gyro) == pytest.approx(delay_s, abs=5e-6)  # 16-bit words
+    cfg = parse_config({"device": [{"name": "a", "chip": "adis16465", "bus": ADIS_SPI, "model": 3,
+                                    "filt_ctrl": filt, "dec_rate": dec_rate,
+                                    "deltas": False}]}).device[0]  # fmt: skip
+    drv = Adis16465Driver(cfg, None, clock)  # type: ignore[arg-type]
+    assert drv.group_delay_ns == round(delay_s * 1e9)
+
+
+def test_adis16465_stamps_mean_the_instant_of_the_motion() -> None:
+    """FILT_CTRL 3 and DEC_RATE 1 (3.75 ms, 7.5 samples at 1000/s) on a chip 1.5 % fast."""
+    rig = make_rig(
+        {"chip": "adis16465", "bus": ADIS_SPI, "model": 3, "filt_ctrl": 3, "dec_rate": 1,
+         "deltas": False},
+        {"errors": {"ideal": True, "gyro_noise_dps_rthz": 0.0}, "clock_error": 0.015,
+         "seed": 15},
+    )  # fmt: skip
+    rig.sim.motion = SineRate()
+    rig.run(3.0)
+    m = concat(rig.batches())
+    t = concat(rig.truth_batches())
+    settled = m["t_ns"] > m["t_ns"][0] + 1e9
+    i = match_truth(m, t)
+    period = 1e9 / (1000 * 1.015)
+    err = (m["t_ns"] - t["t_ns"][i])[settled]
+    assert abs(err.mean()) < 0.05 * period
+    t_s = (m["t_ns"][settled] - rig.sim.t_origin_ns) / 1e9
+    assert abs(delay_of(t_s, m["gyro"][settled])) < 0.05 * period / 1e9

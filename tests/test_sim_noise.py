@@ -8,12 +8,20 @@ clock error), and its samples taken before quantisation."""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
 
+from imud.chips.adis16465.sim import Adis16465Sim
+from imud.chips.bmi088.registers import AccelRegister as AR
+from imud.chips.bmi088.registers import GyroRegister as GR
+from imud.chips.bmi088.sim import Bmi088Sim
+from imud.chips.icm42688p.registers import Bank0 as ICM
+from imud.chips.icm42688p.sim import Icm42688pSim
 from imud.chips.mpu6050.registers import Register as R
 from imud.chips.mpu6050.sim import Mpu6050Sim
+from imud.chips.stim300.sim import Stim300Sim
 from imud.clock import VirtualClock
 from imud.sim.settings import SimSettings
 
@@ -65,3 +73,109 @@ def test_mpu6050_decimated_output_keeps_the_band_rms() -> None:
     datasheet's here."""
     _, wm = mpu6050_still(2, 4, 300.0)
     assert np.degrees(wm.std(axis=0)) == pytest.approx([0.005 * math.sqrt(98.0)] * 3, rel=0.05)
+
+
+# --- the other chips: each drawn one-sided from its datasheet, checked against it -------------
+# Allan N is read at tau = 0.1 s (N = sigma_A(tau) sqrt(tau) on the white-noise line): 100 s of
+# samples give a thousand 0.1 s windows, and every filter's memory is a few ms at most.
+TAU = 0.1
+
+
+def allan_n(x: np.ndarray, rate_hz: float) -> float:
+    """Allan N (per sqrt(Hz)) from the Allan deviation at TAU, averaged over the axes."""
+    return float(allan_dev(x, rate_hz, TAU).mean() * math.sqrt(TAU))
+
+
+def capture(sim: Any, seconds: float, clock: VirtualClock) -> tuple[np.ndarray, np.ndarray]:
+    """Accel and gyro as a sampled chip emits them (before quantisation) for `seconds`."""
+    out: list[tuple[np.ndarray, np.ndarray]] = []
+    sim._emit = lambda t, fm, wm, temp: out.append((fm, wm))
+    clock.advance(int(seconds * 1e9))
+    sim.advance()
+    return np.concatenate([o[0] for o in out]), np.concatenate([o[1] for o in out])
+
+
+def test_stim300_allan_n_is_the_datasheets_arw_and_vrw() -> None:
+    """TS1524 rev.31 Table 5-3: ARW 0.15 deg/sqrt(h) = 0.0025 deg/s/sqrt(Hz) of Allan N; Table
+    5-4: VRW 0.024 m/s/sqrt(h) = 4.0e-4 m/s^2/sqrt(Hz) (10 g). No total RMS is given: the RMS
+    is the one-sided density (sqrt(2) N) over the 262 Hz filter's noise band."""
+    clock = VirtualClock()
+    sim = Stim300Sim(SimSettings(seed=31, errors={"ideal": True}), clock, filter_hz=262)
+    fm, wm = capture(sim, 100.0, clock)
+    assert len(wm) == pytest.approx(200_000, abs=25)  # and the 10 ms it makes ahead
+    n_gyro, n_accel = 0.15 / 60, 0.024 / 60
+    assert math.degrees(allan_n(wm, 2000.0)) == pytest.approx(n_gyro, rel=0.05)
+    assert allan_n(fm, 2000.0) == pytest.approx(n_accel, rel=0.05)
+    band = math.sqrt(2 * 262.0)  # sqrt(2) N sqrt(262 Hz)
+    assert np.degrees(wm.std(axis=0)) == pytest.approx([n_gyro * band] * 3, rel=0.05)
+    assert (fm - fm.mean(axis=0)).std(axis=0) == pytest.approx([n_accel * band] * 3, rel=0.05)
+
+
+def test_adis16465_output_noise_and_density() -> None:
+    """ADIS16465 Rev. B Table 1, the -3: rate noise density 0.007 deg/s/rtHz and output noise
+    0.17 deg/s rms without filtering; accel 23 ug/rtHz and 0.6 mg rms. Allan N = density /
+    sqrt(2): the -3's ARW, 0.30 deg/sqrt(h) = 0.005 deg/s/rtHz, agrees within 1 %."""
+    clock = VirtualClock()
+    sim = Adis16465Sim(SimSettings(seed=32, errors={"ideal": True}), clock, model=3)
+    means: list[np.ndarray] = []
+    words = sim._words
+
+    def keep(mean: np.ndarray, *rest: Any) -> Any:
+        means.append(mean[:, :6].copy())
+        return words(mean, *rest)
+
+    sim._words = keep  # type: ignore[method-assign]
+    clock.advance(100_000_000_000)
+    sim.advance()
+    x = np.concatenate(means)
+    wm, fm = x[:, :3], x[:, 3:]
+    assert len(wm) == pytest.approx(200_000, abs=130)
+    assert np.degrees(wm.std(axis=0)) == pytest.approx([0.17] * 3, rel=0.05)
+    assert (fm - fm.mean(axis=0)).std(axis=0) == pytest.approx([0.6e-3 * G] * 3, rel=0.05)
+    assert math.degrees(allan_n(wm, 2000.0)) == pytest.approx(0.007 / math.sqrt(2), rel=0.05)
+    assert allan_n(fm, 2000.0) == pytest.approx(23e-6 * G / math.sqrt(2), rel=0.05)
+
+
+def test_bmi088_gyro_rms_is_boschs_band_and_allan_n_the_density() -> None:
+    """BMI088: gyro 0.014 deg/s/rtHz, accel 175 ug/rtHz (docs/chips/bmi088.md); Bosch's own
+    RMS rule for the filtered gyro is density * sqrt(1.22 * bandwidth) (Bosch Sensortec
+    community forum, 2020), here 2000 Hz / 230 Hz. The accel's bandwidth table was not
+    retrieved: its noise is the density up to its 800 Hz Nyquist."""
+    clock = VirtualClock()
+    sim = Bmi088Sim(SimSettings(seed=33, errors={"ideal": True}), clock)
+    sim.gyro.write(GR.GYRO_BANDWIDTH, bytes([0x01]))  # 2000 Hz ODR, 230 Hz filter
+    acc = sim.accel
+    acc.write(AR.ACC_PWR_CTRL, bytes([0x04]))
+    clock.advance(6_000_000)
+    acc.write(AR.ACC_PWR_CONF, bytes([0x00]))
+    clock.advance(6_000_000)
+    acc.write(AR.ACC_CONF, bytes([0xAC]))  # normal, 1600 Hz
+    got: dict[str, list[np.ndarray]] = {"a": [], "g": []}
+    acc._emit = lambda t, fm, wm, temp: got["a"].append(fm)  # type: ignore[method-assign]
+    sim.gyro._emit = lambda t, fm, wm, temp: got["g"].append(wm)  # type: ignore[method-assign]
+    clock.advance(100_000_000_000)
+    acc.advance()
+    sim.gyro.advance()
+    wm, fm = np.concatenate(got["g"]), np.concatenate(got["a"])
+    assert len(wm) == pytest.approx(200_000, rel=0.001) and len(fm) > 159_000
+    rms = 0.014 * math.sqrt(1.22 * 230)
+    assert np.degrees(wm.std(axis=0)) == pytest.approx([rms] * 3, rel=0.05)
+    assert math.degrees(allan_n(wm, 2000.0)) == pytest.approx(0.014 / math.sqrt(2), rel=0.05)
+    f0 = fm - fm.mean(axis=0)
+    assert f0.std(axis=0) == pytest.approx([175e-6 * G * math.sqrt(800)] * 3, rel=0.05)
+    assert allan_n(fm, 1600.0) == pytest.approx(175e-6 * G / math.sqrt(2), rel=0.05)
+
+
+def test_icm42688p_density_over_the_ui_filter_band() -> None:
+    """DS-000347 v1.7 front page: 2.8 mdps/rtHz and 70 ug/rtHz (no total RMS retrieved). At
+    1 kHz with the UI filter at ODR/4 (the reset value), the noise band is 250 Hz."""
+    clock = VirtualClock()
+    sim = Icm42688pSim(SimSettings(seed=34, errors={"ideal": True}), clock)
+    sim.write(ICM.PWR_MGMT0, bytes([0x0F]))  # gyro and accel low-noise, 1 kHz, ODR/4
+    fm, wm = capture(sim, 100.0, clock)
+    assert len(wm) == pytest.approx(100_000, abs=2)
+    assert np.degrees(wm.std(axis=0)) == pytest.approx([0.0028 * math.sqrt(250)] * 3, rel=0.05)
+    assert math.degrees(allan_n(wm, 1000.0)) == pytest.approx(0.0028 / math.sqrt(2), rel=0.05)
+    f0 = fm - fm.mean(axis=0)
+    assert f0.std(axis=0) == pytest.approx([70e-6 * G * math.sqrt(250)] * 3, rel=0.05)
+    assert allan_n(fm, 1000.0) == pytest.approx(70e-6 * G / math.sqrt(2), rel=0.05)

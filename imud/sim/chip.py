@@ -3,6 +3,12 @@ lazy sample generation up to the clock's present, the physics, and the ground-tr
 
 A subclass says what its output rate is (from its registers) and what one chunk of samples does
 to its registers and FIFO (`_emit`).
+
+Two start-up and power faults of `[device.sim.faults]` are kept here for every chip: `resets`,
+instants at which the chip resets itself (a brown-out; the subclass's `power_on_reset` says what
+that does to it, applied at the instant itself, with the samples before it made first), and
+`garbage_identity_s`, a start-up window in which the identity register reads garbage
+(`identity`).
 """
 
 from __future__ import annotations
@@ -37,6 +43,11 @@ class SampledChip:
         self._truth: list[dict[str, Any]] = []
         self.samples_produced = 0  # truth index: chip samples since the simulator was made
         self.sampling = False
+        faults = settings.faults
+        self._resets_ns = sorted(self.t_origin_ns + round(r.at_s * 1e9) for r in faults.resets)
+        self.self_resets = 0  # brown-outs applied so far
+        self._garbage_until_ns = self.t_origin_ns + round(faults.garbage_identity_s * 1e9)
+        self._garbage = np.random.default_rng([settings.seed, 0x1DE7])
         self._anchor(clock.now_ns())
 
     # --- for subclasses ---------------------------------------------------------------------
@@ -64,6 +75,11 @@ class SampledChip:
         """A burst read from `register` (the bus side of the chip)."""
         raise NotImplementedError
 
+    def power_on_reset(self) -> None:
+        """The chip resets itself (a `[device.sim.faults] resets` instant): registers to their
+        power-on defaults, as the chip's own soft reset does. The clock reads the instant."""
+        raise NotImplementedError(f"{type(self).__name__} does not simulate a self-reset")
+
     # --- shared -----------------------------------------------------------------------------
     busy_until_ns = 0  # a chip busy resetting ignores the bus until then
 
@@ -84,6 +100,30 @@ class SampledChip:
         for i, value in enumerate(data):
             self._write_one(register + i, value)
 
+    def identity(self, value: int, bits: int = 8) -> int:
+        """What the identity register (WHO_AM_I, CHIP_ID, PROD_ID ...) reads: `value`, but
+        within `garbage_identity_s` of power-on a random word that is never `value` (a chip
+        still booting, or a marginal line)."""
+        if self.clock.now_ns() >= self._garbage_until_ns:
+            return value
+        got = int(self._garbage.integers(0, 1 << bits))
+        return got if got != value else value ^ ((1 << bits) - 1)
+
+    def self_resets_due(self) -> None:
+        """Apply every self-reset whose instant has passed, each at its own instant: the
+        samples due before it are made first, then `power_on_reset` runs with the clock
+        reading that instant (so the sample grid, busy time and start-up restart from it)."""
+        while self._resets_ns and self.clock.now_ns() >= self._resets_ns[0]:
+            at = self._resets_ns.pop(0)
+            real, ahead = self.clock, self.lookahead_ns
+            self.clock, self.lookahead_ns = _Instant(at), 0  # nothing beyond the instant
+            try:
+                self.advance()
+                self.power_on_reset()
+            finally:
+                self.clock, self.lookahead_ns = real, ahead
+            self.self_resets += 1
+
     def _anchor(self, now: int) -> None:
         """Restart the sample grid: the next sample comes one period after `now`."""
         self.grid_origin_ns = float(now)
@@ -94,13 +134,18 @@ class SampledChip:
     def advance(self) -> None:
         """Produce every sample due up to now, in chunks (and `lookahead_ns` beyond, for a chip
         whose output is paced by its own clock: fewer, larger chunks cost less)."""
+        if self._resets_ns and self.clock.now_ns() >= self._resets_ns[0]:
+            self.self_resets_due()
         if not self.sampling:
             return
         now = self.clock.now_ns()
         period = 1e9 / self.rate_hz
         k_max = math.floor((now - self.grid_origin_ns) / period)
         if self.lookahead_ns and k_max >= self.next_k:
-            k_max = math.floor((now + self.lookahead_ns - self.grid_origin_ns) / period)
+            ahead = now + self.lookahead_ns
+            if self._resets_ns:  # nothing ahead of a brown-out
+                ahead = max(now, min(ahead, self._resets_ns[0] - 1))
+            k_max = math.floor((ahead - self.grid_origin_ns) / period)
         while self.next_k <= k_max:
             k_end = min(k_max, self.next_k + CHUNK - 1)
             ks = np.arange(self.next_k, k_end + 1, dtype=np.float64)
@@ -134,3 +179,16 @@ class SampledChip:
                 Channel.TEMPERATURE: np.concatenate([p["temp"] for p in parts]),
             },
         )
+
+
+class _Instant:
+    """The clock a self-reset runs under: it reads the reset's instant."""
+
+    def __init__(self, at_ns: int) -> None:
+        self.at_ns = at_ns
+
+    def now_ns(self) -> int:
+        return self.at_ns
+
+    def sleep_ns(self, ns: int) -> None:
+        raise RuntimeError("a chip does not sleep while it resets")

@@ -22,6 +22,11 @@ e.g. the MPU6050's "5 Hz, 18.6 ms" row is a filter whose noise band is wider tha
 FIR is the boxcar of that length (the narrowest it can be): the delay, which stamps depend on, is
 always the documented one; the noise bandwidth then is the model's (`SensorFilter.enbw_hz`).
 
+Where a chip's filter delay is not published, its band limit colours the noise only
+(`SensorFilter.pre`, `enbw_fir`): the motion passes undelayed and the declared delay stays 0. A
+simulator with its own sample path (a window of documented length, like `bartlett_taps`) draws
+its noise with `NoiseStream`.
+
 Hot path: NumPy only, one `np.convolve` per axis and chunk, the last L - 1 internal noise
 samples carried between chunks; the motion is re-evaluated for the L - 1 internal instants
 before a chunk (it is a pure function of time, so nothing of it needs carrying).
@@ -70,19 +75,48 @@ def gaussian_fir(length: int, enbw_hz: float, rate_hz: float) -> F64:
     return taps(math.sqrt(lo * hi))
 
 
+def enbw_fir(enbw_hz: float, rate_hz: float) -> F64:
+    """A symmetric FIR of unit DC gain whose one-sided noise-equivalent bandwidth on a grid of
+    `rate_hz` is `enbw_hz` (a Gaussian about twice as long as the boxcar of that bandwidth), or
+    the identity when the band reaches Nyquist. For colouring noise only: a sensor's band limit
+    whose delay is not published."""
+    target = 2.0 * enbw_hz / rate_hz
+    if target >= 1.0:
+        return np.ones(1)
+    return gaussian_fir(2 * math.ceil(1.0 / target) + 1, enbw_hz, rate_hz)
+
+
+def bartlett_taps(n: int) -> F64:
+    """Two cascaded n-sample averages: the triangle of 2n - 1 taps (delay n - 1 samples)."""
+    box = np.full(n, 1.0 / n)
+    out: F64 = np.convolve(box, box)
+    return out
+
+
 @dataclass(frozen=True)
 class SensorFilter:
     """One sensor's low-pass at one configuration.
 
     `delay_s`: the documented group delay at the nominal clock; `internal_hz`: the nominal rate
     the filter runs at; `decimation`: internal samples per output sample; `white_band_hz`: the
-    one-sided band of the white noise entering the filter (default internal_hz / 2)."""
+    one-sided band of the white noise entering the filter (default internal_hz / 2); `pre`: a
+    colouring of the noise only, before `taps` (a sensor's own band limit whose delay is not
+    published, so the motion does not pass it)."""
 
     delay_s: float
     internal_hz: float
     taps: F64
     decimation: int = 1
     white_band_hz: float | None = None
+    pre: F64 | None = None
+
+    @property
+    def noise_taps(self) -> F64:
+        """What the white noise passes: `pre`, then `taps`."""
+        if self.pre is None or self.pre.shape[0] == 1:
+            return self.taps
+        out: F64 = np.convolve(self.pre, self.taps)
+        return out
 
     @property
     def delay_samples(self) -> float:
@@ -100,7 +134,7 @@ class SensorFilter:
     @property
     def enbw_hz(self) -> float:
         """One-sided noise-equivalent bandwidth of the output: RMS = density * sqrt(this)."""
-        return self.band_hz * float((self.taps**2).sum())
+        return self.band_hz * float((self.noise_taps**2).sum())
 
     @property
     def rms_per_density(self) -> float:
@@ -123,6 +157,33 @@ def design(
         length = 1  # nothing to narrow: a pure delay
     h = gaussian_fir(length, bandwidth_hz * (internal_hz / 2) / band, internal_hz)
     return SensorFilter(delay_s, internal_hz, h, max(1, decimation), white_band_hz)
+
+
+class NoiseStream:
+    """White noise of one-sided density D (per sample sigma = D sqrt(rate / 2)) on a grid,
+    through a FIR, for a simulator that runs its own sample path; the last len(taps) - 1 white
+    samples are carried between calls, so chunking does not change the noise's spectrum."""
+
+    def __init__(self, taps: F64) -> None:
+        self.taps = taps
+        self.carry: F64 | None = None
+
+    def draw(self, rng: np.random.Generator, density: float, rate_hz: float, n: int) -> F64:
+        """n samples (n, 3) at `rate_hz`."""
+        sigma = density * math.sqrt(rate_hz / 2)
+        length = self.taps.shape[0]
+        if density <= 0:
+            return np.zeros((n, 3))
+        if length == 1:
+            return rng.normal(0.0, sigma, (n, 3))
+        if self.carry is None:
+            self.carry = rng.normal(0.0, sigma, (length - 1, 3))
+        w = np.concatenate([self.carry, rng.normal(0.0, sigma, (n, 3))])
+        self.carry = w[n:]
+        out: F64 = np.stack(
+            [np.convolve(w[:, a], self.taps, mode="valid") for a in range(3)], axis=1
+        )
+        return out
 
 
 @dataclass
@@ -167,9 +228,16 @@ class FilteredChip(SampledChip):
         return g.delay_samples / (g.internal_hz * (1 + self.clock_error)) * 1e9
 
     def _filtered(
-        self, f: SensorFilter, t_ns: I64, sensor: int, density: float, state: _Noise
+        self,
+        f: SensorFilter,
+        t_ns: I64,
+        sensor: int,
+        density: float,
+        state: _Noise,
+        motion: dict[Any, tuple[F64, F64]],
     ) -> tuple[F64, F64]:
-        """The filtered true signal and the filtered noise of one sensor at latch times t_ns."""
+        """The filtered true signal and the filtered noise of one sensor at latch times t_ns
+        (`motion`: the motion sampled on a grid already, shared by the two sensors)."""
         n = t_ns.shape[0]
         m, h = f.decimation, f.taps
         length = h.shape[0]
@@ -178,8 +246,11 @@ class FilteredChip(SampledChip):
         t_last = (t_ns - self.t_origin_ns) / 1e9  # latch instants, s
         # the internal instants the outputs need: a contiguous grid ending at each latch
         count = (n - 1) * m + length
-        grid = t_last[0] - (length - 1) * t_int + t_int * np.arange(count) - pure
-        f_all, w_all = self.motion.sample(grid)
+        start = float(t_last[0]) - (length - 1) * t_int - pure
+        key = (start, count, t_int)
+        if key not in motion:
+            motion[key] = self.motion.sample(start + t_int * np.arange(count))
+        f_all, w_all = motion[key]
         x = w_all if sensor else f_all
         if length == 1:
             sig = x[::m]
@@ -187,20 +258,30 @@ class FilteredChip(SampledChip):
             sig = np.stack([np.convolve(x[:, a], h, mode="valid")[::m] for a in range(3)], axis=1)
         if density <= 0:
             return sig, np.zeros((n, 3))
+        return sig, self._noise_of(f, n, density, state)
+
+    def _noise_of(self, f: SensorFilter, n: int, density: float, state: _Noise) -> F64:
+        """n outputs of white noise of one-sided `density` on the internal grid through the
+        filter (and its noise-only colouring), carried across chunks."""
+        m, h = f.decimation, f.noise_taps
+        length = h.shape[0]
         sigma = density * math.sqrt(f.band_hz)
         rng = self.errors.noise_rng
         if m >= length:  # outputs share no internal sample: independent draws
-            return sig, rng.normal(0.0, sigma * math.sqrt(float((h**2).sum())), (n, 3))
+            return rng.normal(0.0, sigma * math.sqrt(float((h**2).sum())), (n, 3))
         key = (length, m, tuple(h))
         if state.key != key or state.carry.shape[0] != length - 1:
             state.key = key
             state.carry = rng.normal(0.0, sigma, (length - 1, 3))
+        count = (n - 1) * m + length
         reuse = length - m  # internal samples shared with the previous chunk's last output
         fresh = rng.normal(0.0, sigma, (count - reuse, 3))
         w = np.concatenate([state.carry[state.carry.shape[0] - reuse :], fresh])
         state.carry = w[w.shape[0] - (length - 1) :]
-        noise = np.stack([np.convolve(w[:, a], h, mode="valid")[::m] for a in range(3)], axis=1)
-        return sig, noise
+        noise: F64 = np.stack(
+            [np.convolve(w[:, a], h, mode="valid")[::m] for a in range(3)], axis=1
+        )
+        return noise
 
     def _produce(self, t_ns: I64) -> None:
         fa, fg = self.filters()
@@ -209,15 +290,20 @@ class FilteredChip(SampledChip):
         e = self.errors
         t_s = (t_ns - self.t_origin_ns) / 1e9
         temp = self.temp.at(t_s)
-        f_sig, f_noise = self._filtered(fa, t_ns, 0, e.accel.noise, self._noise[0])
-        w_sig, w_noise = self._filtered(fg, t_ns, 1, e.gyro.noise, self._noise[1])
+        motion: dict[Any, tuple[F64, F64]] = {}
+        f_sig, f_noise = self._filtered(fa, t_ns, 0, e.accel.noise, self._noise[0], motion)
+        w_sig, w_noise = self._filtered(fg, t_ns, 1, e.gyro.noise, self._noise[1], motion)
         fm = e.accel.deterministic(t_s, f_sig, temp) + f_noise
         wm = e.gyro.deterministic(t_s, w_sig, temp) + w_noise
         self._emit(t_ns, fm, wm, temp)
-        t_true = t_ns - np.int64(round(self.group_delay_ns()))
+        delay = round(self.group_delay_ns())
+        t_true = t_ns - np.int64(delay)
         self._last_true_ns = float(t_true[-1])
         if self.record_truth:
-            f, w = self.motion.sample((t_true - self.t_origin_ns) / 1e9)
+            if delay == 0 and fa.taps.shape[0] == fg.taps.shape[0] == 1:
+                f, w = f_sig, w_sig  # unfiltered, undelayed: the motion at the latches
+            else:
+                f, w = self.motion.sample((t_true - self.t_origin_ns) / 1e9)
             self._truth.append(
                 {"index": self.samples_produced, "t_ns": t_true, "accel": f, "gyro": w,
                  "temp": temp}

@@ -141,6 +141,14 @@ class Outage(_Strict):
     for_s: float = Field(gt=0.0)
 
 
+class SelfReset(_Strict):
+    """The chip resets itself at `at_s` (seconds after the simulator started), as a brown-out
+    does: registers back to their power-on defaults, FIFO emptied and off, the sample counter
+    restarted; the chip is busy for its datasheet reset time as after a soft reset."""
+
+    at_s: float = Field(ge=0.0)
+
+
 class BusFaults(_Strict):
     """`[device.sim.faults]`: what goes wrong on the bus, per transfer, drawn from the seed.
 
@@ -159,6 +167,15 @@ class BusFaults(_Strict):
     )
     stall_ms: float = Field(20.0, ge=0.0, le=10_000.0, description="length of one stall")
     outages: list[Outage] = Field(default_factory=list, description="device vanishing")
+    resets: list[SelfReset] = Field(
+        default_factory=list, description="the chip resetting itself (a brown-out)"
+    )
+    garbage_identity_s: float = Field(
+        0.0,
+        ge=0.0,
+        le=3600.0,
+        description="for this long after power-on the identity register reads garbage",
+    )
 
 
 class MagneticSettings(_Strict):

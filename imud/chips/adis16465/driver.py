@@ -37,7 +37,7 @@ from imud.chips.adis16465.wordplan import WordPlan
 from imud.chips.api import ChipCounter, DriverCounters, FifoRead, RawBatch, RawChannel
 from imud.chips.regplan import RegisterChecker, RegisterSetting
 from imud.clock import Clock
-from imud.errors import BusError, DeviceIdentityError
+from imud.errors import BusError, DeviceIdentityError, RegisterMismatch
 
 Reg = R.Register
 RESET_WAIT_NS = 200_000_000  # the datasheet's 198 ms, rounded up as Linux does
@@ -130,7 +130,10 @@ class Adis16465Driver:
         speed = bus_speed_hz(cfg.bus) or R.MAX_BURST_SCLK_HZ
         self.reg_hz, self.burst_hz = frame_speeds(speed)
         self.nominal_period_ns = 1e9 / cfg.odr_hz
-        self.group_delay_ns = 0  # filter delay not modelled yet (docs/timestamps.md)
+        # the Bartlett window (2^B - 1 internal samples) and the DEC_RATE average ((D - 1) / 2):
+        # linear-phase FIRs, delays from their lengths (docs/timestamps.md)
+        delay = 2**cfg.filt_ctrl - 1 + cfg.dec_rate / 2
+        self.group_delay_ns = round(delay * 1e9 / R.INTERNAL_RATE_HZ)
         self.poll_interval_ns = 0
         self.rate = RateEstimator(cfg.odr_hz)
         # the gyro and accel low words carry bits when the chip decimates or filters
@@ -237,6 +240,12 @@ class Adis16465Driver:
         pid = self._product_id()
         if pid != R.PROD_ID_VALUE:
             pid = self._product_id()  # once more: the first frame after power-up may be lost
+        for _ in range(RESET_WAIT_NS // RESET_POLL_NS + RESET_POLLS):
+            if pid:
+                break
+            # silent: a chip resetting (after a power glitch of its own) answers zeros
+            yield RESET_POLL_NS
+            pid = self._product_id()
         self._identify(pid)
         self.write_word(Reg.GLOB_CMD, R.GlobCmd.SOFTWARE_RESET)
         yield RESET_WAIT_NS
@@ -286,6 +295,20 @@ class Adis16465Driver:
             f"frame dropped (SCLK {self.burst_hz / 1e6:g} MHz; noise on the lines?)",
         )
 
+    def _silent(self) -> BusError:
+        """A burst of all zeros: the chip does not answer. If PROD_ID reads 0 too, it is
+        resetting (its SPI port is silent for 198 ms after a reset): it reset itself, and is
+        re-initialised once it answers; its registers and DATA_CNTR start over."""
+        (pid,) = self.read_words([Reg.PROD_ID])
+        if pid == 0:
+            self.counters.bad_registers += 1
+            return RegisterMismatch(
+                0,
+                "burst and PROD_ID (0x72) read all zeros: the ADIS16465 is not answering "
+                "(it reset itself, or lost power or its wiring); reinitialise",
+            )
+        return BusError(0, "burst read all zeros: the ADIS16465 is not answering (resetting?)")
+
     def _note_diag(self, diag: int) -> None:
         """DIAG_STAT bits clear when read: keep their union and a count per bit."""
         self.diag_seen |= diag
@@ -314,7 +337,7 @@ class Adis16465Driver:
         if got != sent:
             raise self._burst_failed(rx, got, sent)
         if not any(response):
-            raise BusError(0, "burst read all zeros: the ADIS16465 is not answering (resetting?)")
+            raise self._silent()
         if count != polled:  # no counter poll, or a newer sample since: the burst's brackets
             t_before, t_after = b_before, b_after
         if diag:

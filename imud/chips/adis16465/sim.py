@@ -17,9 +17,11 @@ register reads than 12 x (DEC_RATE + 1) since the last output update set the dat
 flag (bursts do not count); a frame of an odd byte count sets the SPI communication error flag
 and loses the pending answer; a register write takes effect when its high byte is written; while
 a command runs the chip answers zeros and ignores frames; with DEC_RATE = 0 the _LOW words of
-gyro and accel read 0; the 16-bit outputs saturate at +-32767; FILT_CTRL is held but its
-Bartlett filter is not applied (nor is the sensors' own band limit: the noise is white at the
-internal rate); TIME_STAMP reads 0.
+gyro and accel read 0; the 16-bit outputs saturate at +-32767; TIME_STAMP reads 0. The
+Bartlett window (FILT_CTRL) filters gyro and accel before the DEC_RATE average, and the delta
+outputs are integrated from its output (before or after: not verified); the sensors' own band
+limit colours the noise only (its delay is not published); a FILT_CTRL write applies to the
+outputs not yet made ahead.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from imud.chips.adis16465.registers import Register as Reg
 from imud.chips.api import SpiFrameDie, Truth
 from imud.clock import Clock
 from imud.sim.chip import TRUTH_KEEP, SampledChip
+from imud.sim.filters import NoiseStream, bartlett_taps, enbw_fir
 from imud.sim.physics import ChipFigures
 from imud.sim.settings import SimSettings
 
@@ -74,6 +77,12 @@ _BURST_HEAD = (R.BURST_CMD >> 8, R.BURST_CMD & 0xFF)
 _NINE = struct.Struct(">9H")
 
 
+# The sensors' own noise bandwidth before the digital filters, per model: the datasheet's output
+# noise without filtering over its density, squared (DS Table 1: gyro 0.07 / 0.08 / 0.17 deg/s
+# rms at 0.003 / 0.003 / 0.007 deg/s/rtHz; accel 0.6 mg rms at 23 ug/rtHz), close to the sensor
+# bandwidths (gyro 550 Hz, accel 600 Hz). Its delay is not published: it colours the noise only.
+GYRO_NOISE_BAND_HZ = {1: (0.07 / 0.003) ** 2, 2: (0.08 / 0.003) ** 2, 3: (0.17 / 0.007) ** 2}
+ACCEL_NOISE_BAND_HZ = (0.6e-3 / 23e-6) ** 2
 BLOCK = 128  # internal samples made per NumPy pass, ahead of time (64 ms)
 # output registers -> column of an output sample's words: gyro and accel _LOW/_OUT (0x04 ...
 # 0x1A), the deltas' (0x24 ... 0x3A), TEMP_OUT
@@ -132,6 +141,8 @@ class Adis16465Sim(SampledChip):
         self.record_truth = settings.truth
         self._truth_out: list[tuple[int, npt.NDArray[np.int64], dict[Channel, F64]]] = []
         self.outputs_produced = 0  # truth index: output samples since the simulator was made
+        self._noise = (NoiseStream(enbw_fir(GYRO_NOISE_BAND_HZ[model], NOMINAL_HZ)),
+                       NoiseStream(enbw_fir(ACCEL_NOISE_BAND_HZ, NOMINAL_HZ)))  # fmt: skip
         self.bursts = 0
         self.register_reads = 0
         self._power_on(clock.now_ns())
@@ -176,6 +187,7 @@ class Adis16465Sim(SampledChip):
         self._sum = np.zeros(12)  # measured gyro, accel; true gyro, accel
         self._trap = np.zeros(12)
         self._prev: F64 | None = None  # the last internal sample
+        self._hist: F64 | None = None  # the Bartlett filter's last inputs (taps - 1, 6)
         self._block = _Block.empty()
         self._oi = 0  # the block's next output not yet due
 
@@ -202,6 +214,8 @@ class Adis16465Sim(SampledChip):
     def advance(self) -> None:
         """Latch every output sample due by now. Outputs are made ahead in blocks (one NumPy
         pass for hundreds of internal samples) and only latched when their time comes."""
+        if self._resets_ns and self.clock.now_ns() >= self._resets_ns[0]:
+            self.self_resets_due()
         if not self.sampling:
             return
         k_now = math.floor((self.clock.now_ns() - self.grid_origin_ns) * self.rate_hz / 1e9)
@@ -217,19 +231,53 @@ class Adis16465Sim(SampledChip):
                     return
             self._make_block()
 
-    def _make_block(self) -> None:
-        """The next internal samples (at least BLOCK, and enough for one output), measured and
-        true, into output samples: their mean, and the trapezoid sums of the deltas."""
-        D = self.dec
-        n = max(BLOCK, D - self._n_acc)
-        k = np.arange(self.next_k, self.next_k + n, dtype=np.float64)
+    @property
+    def filt(self) -> int:
+        """B of FILT_CTRL: the Bartlett window's two stages average 2^B internal samples."""
+        return min(self.words[Reg.FILT_CTRL >> 1] & R.FILT_CTRL_SIZE.mask, R.FILT_CTRL_MAX)
+
+    def group_delay_samples(self) -> float:
+        """The digital filters' delay in internal samples: the Bartlett window's 2^B - 1 and
+        the DEC_RATE average's (D - 1) / 2 (both linear phase: their lengths say it)."""
+        return (1 << self.filt) - 1 + (self.dec - 1) / 2
+
+    def _measure(self, k: F64) -> tuple[npt.NDArray[np.int64], F64, F64, F64, F64]:
+        """Internal samples k before the digital filters: their instants (ns), temperature,
+        true specific force and rate, and measured gyro and accel (n, 6) with the noise."""
         t_ns = np.floor(self.grid_origin_ns + k * (1e9 / self.rate_hz)).astype(np.int64)
-        self.next_k += n
         t_s = (t_ns - self.t_origin_ns) / 1e9
         f, w = self.motion.sample(t_s)
         temp = self.temp.at(t_s)
-        fm, wm = self.errors.apply(t_s, f, w, temp, self.rate_hz)
-        x = np.concatenate([wm, fm, w, f], axis=1)
+        e, rng, n = self.errors, self.errors.noise_rng, k.shape[0]
+        wm = e.gyro.deterministic(t_s, w, temp)
+        wm += self._noise[0].draw(rng, e.gyro.noise, self.rate_hz, n)
+        fm = e.accel.deterministic(t_s, f, temp)
+        fm += self._noise[1].draw(rng, e.accel.noise, self.rate_hz, n)
+        return t_ns, temp, f, w, np.concatenate([wm, fm], axis=1)
+
+    def _make_block(self) -> None:
+        """The next internal samples (at least BLOCK, and enough for one output), measured,
+        through the Bartlett window, and true, into output samples: their mean, and the
+        trapezoid sums of the deltas. The truth is the motion the outputs stand for: the
+        window's 2^B - 1 samples back, the mean over the same D samples, stamped at the latch
+        less the group delay (so a stamp minus the truth's is the stamp's error)."""
+        D = self.dec
+        n = max(BLOCK, D - self._n_acc)
+        k = np.arange(self.next_k, self.next_k + n, dtype=np.float64)
+        self.next_k += n
+        t_ns, temp, f, w, raw = self._measure(k)
+        taps = bartlett_taps(1 << self.filt)
+        back = taps.shape[0] - 1  # inputs the window needs before the block
+        if back:
+            if self._hist is None or self._hist.shape[0] != back:
+                self._hist = self._measure(k[0] - back + np.arange(back, dtype=np.float64))[4]
+            full = np.concatenate([self._hist, raw])
+            self._hist = full[full.shape[0] - back :]
+            raw = np.stack([np.convolve(full[:, c], taps, mode="valid") for c in range(6)], 1)
+            lag = back // 2  # the window's delay, 2^B - 1 samples
+            t_lag = np.floor(self.grid_origin_ns + (k - lag) * (1e9 / self.rate_hz))
+            f, w = self.motion.sample((t_lag - self.t_origin_ns) / 1e9)
+        x = np.concatenate([raw, w, f], axis=1)
         prev = x[:1] if self._prev is None else self._prev[None, :]
         trap = 0.5 * (x + np.concatenate([prev, x[:-1]]))
         self._prev = x[-1]
@@ -252,10 +300,11 @@ class Adis16465Sim(SampledChip):
             Channel.DELTA_ANGLE: traps[:, 6:9] / self.rate_hz,
             Channel.DELTA_VELOCITY: traps[:, 9:12] / self.rate_hz,
         }
+        delay_ns = self.group_delay_samples() * 1e9 / self.rate_hz
         self._block = _Block(
             k[ends].astype(np.int64).tolist(),
             self._words(mean, traps, temp[ends], D == 1),
-            t_ns[ends],
+            t_ns[ends] - np.int64(round(delay_ns)),
             truth,
         )
         self._oi = 0
@@ -304,6 +353,8 @@ class Adis16465Sim(SampledChip):
             return self.current[col]
         if reg == Reg.DATA_CNTR:
             return self.count
+        if reg == Reg.PROD_ID:
+            return self.identity(self.words[reg >> 1], 16)
         return self.words[reg >> 1]
 
     def drain_truth(self) -> Truth | None:
@@ -318,6 +369,8 @@ class Adis16465Sim(SampledChip):
 
     # --- bus side ---------------------------------------------------------------------------
     def spi_frame(self, tx: bytes, speed_hz: int) -> bytes:
+        if self._resets_ns and self.clock.now_ns() >= self._resets_ns[0]:
+            self.self_resets_due()
         self._wake()
         n = len(tx)
         if n % 2:  # an SCLK count that is not a multiple of 16
@@ -396,6 +449,11 @@ class Adis16465Sim(SampledChip):
             self._restart_decimation(
                 math.floor((now - self.grid_origin_ns) * self.rate_hz / 1e9) + 1
             )
+
+    def power_on_reset(self) -> None:
+        """A brown-out: as GLOB_CMD's software reset (silent for its 198 ms, then the flash
+        defaults and DATA_CNTR from 0)."""
+        self._word_written(Reg.GLOB_CMD, int(R.GlobCmd.SOFTWARE_RESET))
 
     # SampledChip's byte-register side does not exist on this chip
     def read(self, register: int, length: int) -> bytes:

@@ -87,7 +87,7 @@ class Bmi088Driver:
         self.counters = DriverCounters()
         self.spi = is_spi(cfg.bus)
         self.nominal_period_ns = 1e9 / cfg.odr_hz
-        self.group_delay_ns = 0  # filter delay not modelled yet (docs/timestamps.md)
+        self.group_delay_ns = 0  # the filters' delay is not published (docs/timestamps.md)
         self.accel_period_ns = 1e9 / cfg.accel_odr_hz
         self.fifo_capacity = R.GYRO_FIFO_FRAMES
         acc_frames = R.ACC_FIFO_BYTES // R.ACC_FRAME_BYTES
@@ -110,7 +110,12 @@ class Bmi088Driver:
         self.temperature = 23.0
         self.acc_plan = RegisterPlan(acc, accel_plan(cfg), die="accel")
         self.gyr_plan = RegisterPlan(gyr, gyro_plan(cfg), die="gyro")
-        self._checker = RegisterChecker([self.acc_plan, self.gyr_plan], clock, self.counters)
+        # any reset leaves the accel off (ACC_PWR_CTRL) and the gyro FIFO in bypass mode
+        plans = [self.acc_plan, self.gyr_plan]
+        self._checker = RegisterChecker(
+            plans, clock, self.counters, sentinels=[(p, p.settings[-1]) for p in plans],
+            poll_ns=self.poll_interval_ns + self.nominal_period_ns,
+        )  # fmt: skip
         self._g_resync = self._a_resync = False
         self._g_restart: tuple[int, int] | None = None
         self._a_restart: tuple[int, int] | None = None
@@ -128,13 +133,18 @@ class Bmi088Driver:
                 got = dev.read_u8(reg)
             if got != want:
                 raise DeviceIdentityError(
-                    f"BMI088 {die} die: CHIP_ID reads 0x{got:02x}, expected 0x{want:02x}: check "
+                    f"BMI088 {die} die: CHIP_ID (0x{reg:02x}) reads 0x{got:02x}, expected "
+                    f"0x{want:02x}: check "
                     f"the wiring and {'bus' if die == 'accel' else 'gyro_bus'} (the {die} die's "
                     "chip select or address)"
                 )
 
     def start(self) -> Iterator[int]:
-        self._identify()
+        try:
+            self._identify()
+        except DeviceIdentityError:  # a die still busy after a reset of its own answers zeros
+            yield R.GYRO_RESET_WAIT_NS
+            self._identify()
         self.acc.write_u8(A.ACC_SOFTRESET, R.SOFTRESET_CMD)
         self.gyr.write_u8(G.GYRO_SOFTRESET, R.SOFTRESET_CMD)
         yield R.GYRO_RESET_WAIT_NS  # covers the accel's 1 ms too

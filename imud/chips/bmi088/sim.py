@@ -27,7 +27,7 @@ from imud.chips.bmi088 import registers as R
 from imud.chips.bmi088.registers import AccelRegister as A
 from imud.chips.bmi088.registers import GyroRegister as G
 from imud.clock import Clock
-from imud.sim.chip import SampledChip
+from imud.sim.filters import FilteredChip, SensorFilter, enbw_fir
 from imud.sim.physics import ChipFigures, ErrorModel, quantise
 from imud.sim.settings import SimSettings
 
@@ -58,6 +58,16 @@ TEMP_UPDATE_NS = 1_280_000_000
 ACC_FRAMES_MAX = R.ACC_FIFO_BYTES // R.ACC_FRAME_BYTES  # 146 frames; with a skip frame, 1024 bytes
 ACC_ODR_BY_CODE = {code: hz for hz, code in R.ACCEL_ODR_CODES.items()}
 GYRO_FIFO_BYTES = R.GYRO_FIFO_FRAMES * R.GYRO_FRAME_BYTES
+# Noise bandwidth over filter bandwidth of the gyro (Bosch Sensortec's application engineer,
+# community forum "Why the power spectral density (PSD) of BMI088 Gyro have strange peak point",
+# 2020: RMS = density * sqrt(1.22 * bandwidth)); the filters' group delay is not published
+ENBW_PER_BW = 1.22
+
+
+def _unfiltered(rate_hz: float, pre: npt.NDArray[np.float64] | None = None) -> SensorFilter:
+    """No modelled delay, the output grid as the internal one; `pre` colours the noise."""
+    return SensorFilter(0.0, rate_hz, np.ones(1), 1, None, pre)
+
 
 _ACC_DEFAULTS = {
     A.ACC_CHIP_ID: R.ACC_CHIP_ID_VALUE, A.ACC_CONF: 0xA8, A.ACC_RANGE: 0x01,
@@ -81,7 +91,7 @@ def temperature_bytes(temp_c: float) -> tuple[int, int]:
     return u11 >> 3, (u11 & 0x7) << 5
 
 
-class Bmi088AccelSim(SampledChip):
+class Bmi088AccelSim(FilteredChip):
     def __init__(self, settings: SimSettings, clock: Clock) -> None:
         super().__init__(settings, clock, FIGURES)
         self.frames_dropped = 0
@@ -114,6 +124,12 @@ class Bmi088AccelSim(SampledChip):
     @property
     def rate_hz(self) -> float:
         return ACC_ODR_BY_CODE.get(self.regs[A.ACC_CONF] & 0x0F, 100.0) * (1 + self.clock_error)
+
+    def filters(self) -> tuple[SensorFilter, SensorFilter]:
+        """White one-sided noise up to the output's Nyquist: the accel's bandwidth per ODR and
+        oversampling mode was not retrieved (docs/chips/bmi088.md), nor any delay."""
+        odr = ACC_ODR_BY_CODE.get(self.regs[A.ACC_CONF] & 0x0F, 100.0)
+        return _unfiltered(odr), _unfiltered(odr)
 
     def _emit(
         self,
@@ -186,9 +202,15 @@ class Bmi088AccelSim(SampledChip):
         size = len(self.fifo) + (2 if self.skipped else 0)
         image[A.FIFO_LENGTH_0 : A.FIFO_LENGTH_0 + 2] = size.to_bytes(2, "little")
         end = min(register + length, len(image))
+        if register <= A.ACC_CHIP_ID < end:
+            image[A.ACC_CHIP_ID] = self.identity(image[A.ACC_CHIP_ID])
         if register <= A.ACC_STATUS < end:
             self.drdy = False
         return bytes(image[register:end]) + bytes(register + length - end)
+
+    def power_on_reset(self) -> None:
+        """A brown-out: as a soft reset (defaults, suspended, I2C mode, FIFO empty, busy)."""
+        self._write_one(A.ACC_SOFTRESET, R.SOFTRESET_CMD)
 
     def _write_one(self, reg: int, value: int) -> None:
         now = self.clock.now_ns()
@@ -221,7 +243,7 @@ class Bmi088AccelSim(SampledChip):
             self._anchor(now)
 
 
-class Bmi088GyroSim(SampledChip):
+class Bmi088GyroSim(FilteredChip):
     def __init__(self, settings: SimSettings, clock: Clock, t_origin_ns: int) -> None:
         super().__init__(settings, clock, FIGURES)
         self.t_origin_ns = t_origin_ns  # one body: the same physics time as the accel die
@@ -246,6 +268,18 @@ class Bmi088GyroSim(SampledChip):
     def rate_hz(self) -> float:
         odr, _ = R.GYRO_BANDWIDTH_CODES[self.regs[G.GYRO_BANDWIDTH] & 0x07]
         return odr * (1 + self.clock_error)
+
+    _filter_cache: tuple[int, tuple[SensorFilter, SensorFilter]] | None = None
+
+    def filters(self) -> tuple[SensorFilter, SensorFilter]:
+        """The gyro's noise coloured to 1.22 x the code's filter bandwidth (Bosch); no delay
+        (not published). The accel of this die is not output."""
+        code = self.regs[G.GYRO_BANDWIDTH] & 0x07
+        if self._filter_cache is None or self._filter_cache[0] != code:
+            odr, bw = R.GYRO_BANDWIDTH_CODES[code]
+            gyro = _unfiltered(odr, enbw_fir(ENBW_PER_BW * bw, odr))
+            self._filter_cache = (code, (_unfiltered(odr), gyro))
+        return self._filter_cache[1]
 
     def _emit(
         self,
@@ -285,7 +319,13 @@ class Bmi088GyroSim(SampledChip):
         overrun = R.GyroFifoStatus.OVERRUN if self.overrun else 0
         image[G.FIFO_STATUS] = overrun | len(self.fifo) // R.GYRO_FRAME_BYTES
         end = min(register + length, len(image))
+        if register <= G.GYRO_CHIP_ID < end:
+            image[G.GYRO_CHIP_ID] = self.identity(image[G.GYRO_CHIP_ID])
         return bytes(image[register:end]) + bytes(register + length - end)
+
+    def power_on_reset(self) -> None:
+        """A brown-out: as a soft reset (defaults, FIFO in bypass, busy 30 ms)."""
+        self._power_on_reset(GYR_RESET_BUSY_NS)
 
     def _write_one(self, reg: int, value: int) -> None:
         if reg == G.GYRO_SOFTRESET:

@@ -125,7 +125,7 @@ class Bno055Driver:
         self.mode = MODES[cfg.mode]
         self.fusion = int(self.mode) in _FUSION
         self.nominal_period_ns = 1e9 / R.FUSION_RATE_HZ
-        self.group_delay_ns = 0  # filter delay not modelled yet (docs/timestamps.md)
+        self.group_delay_ns = 0  # the filters' delay is not published (docs/timestamps.md)
         self.grid = SampleGrid(self.nominal_period_ns, CLOCK_TOLERANCE)
         # from a read's start to the chip's snapshot: the request's chunks on a UART
         self._latch_lead_ns = CHUNK_GAP_NS if uart is not None else 0
@@ -172,7 +172,12 @@ class Bno055Driver:
         if self.uart is not None:
             self.uart.flush()
         self.dev.write_u8(P0.PAGE_ID, 0)  # CHIP_ID is on page 0
-        self._check_identity(self.dev.read(P0.CHIP_ID, 7))
+        ids = self.dev.read(P0.CHIP_ID, 7)
+        if not any(ids):  # booting (a chip that reset itself reads zeros for 650 ms): wait
+            yield from self._await_boot(BOOT_POLLS + R.RESET_WAIT_NS // BOOT_POLL_NS)
+            self.dev.write_u8(P0.PAGE_ID, 0)
+            ids = self.dev.read(P0.CHIP_ID, 7)
+        self._check_identity(ids)
         if self.uart is not None:
             self.uart.write_no_answer(P0.SYS_TRIGGER, R.SysTrigger.RST_SYS)
         else:
@@ -218,8 +223,8 @@ class Bno055Driver:
         self.firmware = f"{ids[P0.SW_REV_ID_MSB]:x}.{ids[P0.SW_REV_ID_LSB]:02x}"
         self.bootloader = ids[P0.BL_REV_ID]
 
-    def _await_boot(self) -> Iterator[int]:
-        for _ in range(BOOT_POLLS):
+    def _await_boot(self, polls: int = BOOT_POLLS) -> Iterator[int]:
+        for _ in range(polls):
             if self.uart is not None:
                 self.uart.flush()  # whatever the chip said while it booted
             with contextlib.suppress(BusError):
@@ -343,6 +348,10 @@ class Bno055Driver:
             else:
                 self.empty_reads += 1
             self.grid.observe(tb, ta, new=False)  # the next sample came after tb
+            if self._prev is not None and body != self._prev:
+                # zeros where there were data: a chip back in CONFIG mode after a reset of its
+                # own reads so at once; asking OPR_MODE now finds it well within 100 ms
+                self._check_mode()
             if t1 - self._last_new_ns > STALE_NS:
                 self._stale(t1)
             return RawBatch(0, {}, FifoRead(tb, ta))
@@ -365,6 +374,15 @@ class Bno055Driver:
 
     def _stale(self, now: int) -> None:
         """No new sample for STALE_NS: find out why, and have the runner re-initialise."""
+        self._check_mode()
+        raise RegisterMismatch(
+            0,
+            f"no new data for {(now - self._last_new_ns) / 1e6:.0f} ms although the chip is in "
+            f"{self.mode.name} mode: its fusion stalled; reinitialise",
+        )
+
+    def _check_mode(self) -> None:
+        """The chip still in the configured mode, or it reset itself: raise for the runner."""
         mode = self.dev.read_u8(P0.OPR_MODE)
         if R.OPR_MODE_FIELD.get(mode) != self.mode:
             self.counters.bad_registers += 1
@@ -373,11 +391,6 @@ class Bno055Driver:
                 f"OPR_MODE reads 0x{mode:02x}, configured 0x{int(self.mode):02x}: the chip "
                 "reset itself (power glitch?); reinitialise",
             )
-        raise RegisterMismatch(
-            0,
-            f"no new data for {(now - self._last_new_ns) / 1e6:.0f} ms although the chip is in "
-            f"{self.mode.name} mode: its fusion stalled; reinitialise",
-        )
 
     def _decode(self, body: bytes, timing: FifoRead) -> RawBatch:
         w = np.frombuffer(body, dtype="<i2", count=22).astype(np.int32).reshape(1, 22)

@@ -47,6 +47,7 @@ from imud.chips.bno055.registers import Page0 as P0
 from imud.chips.bno055.registers import Page1 as P1
 from imud.clock import Clock
 from imud.sim.chip import TRUTH_KEEP, SampledChip
+from imud.sim.filters import NoiseStream, enbw_fir
 from imud.sim.physics import (
     ChipFigures,
     MagneticField,
@@ -60,6 +61,7 @@ from imud.sim.settings import SimSettings
 
 G = 9.80665
 F64 = npt.NDArray[np.float64]
+ACCEL_FUSION_LPF_HZ, GYRO_FUSION_LPF_HZ = 62.5, 32.0
 # The BNO055's own sheet gives no noise densities; these are its accelerometer's and gyroscope's
 # class (BMA280 / BMG160-like, docs/chips/bno055.md), bias stability ~5 deg/h
 FIGURES = ChipFigures(
@@ -152,6 +154,10 @@ class Bno055Sim(SampledChip):
         self.lock = threading.RLock()  # the pty pump and the bus worker (truth) both come here
         self.uart = UartFrontEnd(self, serial_baud, settings, seeds[2]) if serial_baud else None
         self.resets = 0
+        # fusion mode locks the filters at accel 62.5 Hz and gyro 32 Hz (docs/chips/bno055.md);
+        # at 100 Hz out only the gyro's narrows the noise; no delay is published (0)
+        self._noise = (NoiseStream(enbw_fir(ACCEL_FUSION_LPF_HZ, RATE_HZ)),
+                       NoiseStream(enbw_fir(GYRO_FUSION_LPF_HZ, RATE_HZ)))  # fmt: skip
         self._power_on_reset()
 
     @property
@@ -205,7 +211,11 @@ class Bno055Sim(SampledChip):
         f, w = self.motion.sample(t_s)
         q = self.motion.orientation(t_s)
         temp = self.temp.at(t_s)
-        fm, wm = self.errors.apply(t_s, f, w, temp, self.rate_hz)
+        e, rng, n = self.errors, self.errors.noise_rng, t_ns.shape[0]
+        fm = e.accel.deterministic(t_s, f, temp)
+        fm += self._noise[0].draw(rng, e.accel.noise, self.rate_hz, n)
+        wm = e.gyro.deterministic(t_s, w, temp)
+        wm += self._noise[1].draw(rng, e.gyro.noise, self.rate_hz, n)
         b = self.field.in_body(q)
         mm = self.field.measure(b)
         n = t_ns.shape[0]
@@ -369,7 +379,17 @@ class Bno055Sim(SampledChip):
             self.advance()
             regs = self.p0 if self.page == 0 else self.p1
             out = bytes(regs[register : register + length])
+            if self.page == 0 and register <= P0.CHIP_ID < register + len(out):
+                i = P0.CHIP_ID - register
+                out = out[:i] + bytes([self.identity(out[i])]) + out[i + 1 :]
             return out + bytes(length - len(out))
+
+    def power_on_reset(self) -> None:
+        """A brown-out: as RST_SYS (defaults, CONFIG mode, silent while it boots)."""
+        with self.lock:
+            self.resets += 1
+            self._power_on_reset()
+            self.reset_until_ns = self.clock.now_ns() + RESET_BUSY_NS
 
     def write(self, register: int, data: bytes) -> None:
         self.write_status(register, data)

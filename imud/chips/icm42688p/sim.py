@@ -19,7 +19,7 @@ from imud.chips.icm42688p.registers import Bank0 as B0
 from imud.chips.icm42688p.registers import Bank1 as B1
 from imud.chips.icm42688p.registers import Bank2 as B2
 from imud.clock import Clock
-from imud.sim.chip import SampledChip
+from imud.sim.filters import FilteredChip, SensorFilter, enbw_fir
 from imud.sim.physics import ChipFigures, quantise
 from imud.sim.settings import SimSettings
 
@@ -51,6 +51,10 @@ _BOTH = int(R.FifoConfig1.ACCEL_EN | R.FifoConfig1.GYRO_EN)
 _HDR = int(R.Header.ACCEL | R.Header.GYRO) | R.HEADER_TMST_FSYNC.bits(R.TMST_FSYNC_ODR)
 _HDR_20 = int(R.Header.HIRES_20)
 ODR_BY_CODE = {code: hz for hz, code in R.ODR_CODES.items()}
+# UI filter code (GYRO_ACCEL_CONFIG0 nibble) -> divisor of max(400 Hz, ODR): its bandwidth in
+# low-noise mode (docs/chips/icm42688p.md section 2.1); code 0 is ODR/2, the low-latency codes
+# 14 and 15 narrow nothing below the output's Nyquist
+UI_FILTER_DIVISOR = {1: 4, 2: 5, 3: 8, 4: 10, 5: 16, 6: 20, 7: 40}
 
 _BANK0_DEFAULTS = {
     B0.WHO_AM_I: R.WHO_AM_I_VALUE, B0.INTF_CONFIG0: 0x30, B0.INTF_CONFIG1: 0x91,
@@ -65,7 +69,7 @@ _READ_ONLY0 = {B0.WHO_AM_I, B0.INT_STATUS, B0.FIFO_COUNTH, B0.FIFO_COUNTL, B0.FI
                *range(B0.TEMP_DATA1, B0.TEMP_DATA1 + 14)}  # fmt: skip
 
 
-class Icm42688pSim(SampledChip):
+class Icm42688pSim(FilteredChip):
     spi_dummy_bytes = 0
 
     def __init__(self, settings: SimSettings, clock: Clock) -> None:
@@ -98,6 +102,25 @@ class Icm42688pSim(SampledChip):
     def rate_hz(self) -> float:
         code = self.regs[B0.GYRO_CONFIG0] & 0x0F
         return ODR_BY_CODE.get(code, 1000.0) * (1 + self.clock_error)
+
+    _filter_cache: tuple[tuple[int, int], tuple[SensorFilter, SensorFilter]] | None = None
+
+    def filters(self) -> tuple[SensorFilter, SensorFilter]:
+        """Each sensor's UI filter as a colouring of its noise: the code's bandwidth taken as
+        the noise bandwidth, one-sided density. Its group delay is in the datasheet's per-ODR
+        tables (DS-000347 section 5.5), which were not retrieved: none is modelled (0), so
+        the motion passes unfiltered."""
+        key = (self.regs[B0.GYRO_CONFIG0] & 0x0F, self.regs[B0.GYRO_ACCEL_CONFIG0])
+        if self._filter_cache is None or self._filter_cache[0] != key:
+            odr = ODR_BY_CODE.get(key[0], 1000.0)
+
+            def ui(code: int) -> SensorFilter:
+                div = UI_FILTER_DIVISOR.get(code)
+                bw = max(400.0, odr) / div if div else odr / 2
+                return SensorFilter(0.0, odr, np.ones(1), 1, None, enbw_fir(bw, odr))
+
+            self._filter_cache = (key, (ui(key[1] >> 4), ui(key[1] & 0x0F)))
+        return self._filter_cache[1]
 
     @property
     def hires(self) -> bool:
@@ -230,9 +253,16 @@ class Icm42688pSim(SampledChip):
         end = min(register + length, len(image))
         if register <= B0.INT_STATUS < end:
             self.int_status = 0  # clears on read
+        if register <= B0.WHO_AM_I < end:
+            image[B0.WHO_AM_I] = self.identity(image[B0.WHO_AM_I])
         if register <= B0.FIFO_COUNTH < end:
             self.count_zero_once = False
         return bytes(image[register:end]) + bytes(register + length - end)
+
+    def power_on_reset(self) -> None:
+        """A brown-out: as SOFT_RESET_CONFIG (defaults, sensors off, FIFO empty, busy)."""
+        self.bank = 0  # DEVICE_CONFIG is in bank 0 (the reset selects bank 0 anyway)
+        self._write_one(B0.DEVICE_CONFIG, int(R.DeviceConfig.SOFT_RESET_CONFIG))
 
     def _write_one(self, reg: int, value: int) -> None:
         now = self.clock.now_ns()

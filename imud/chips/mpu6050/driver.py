@@ -126,7 +126,11 @@ class Mpu6050Driver:
         self.accel_scale = accel_scale_ms2(cfg.accel_range_g)
         self.gyro_scale = gyro_scale_rads(cfg.gyro_range_dps)
         self.plan = RegisterPlan(dev, register_plan(cfg))
-        self._checker = RegisterChecker([self.plan], clock, self.counters)
+        # PWR_MGMT_1: any reset leaves the chip asleep (SLEEP set), which the plan clears
+        self._checker = RegisterChecker(
+            [self.plan], clock, self.counters, sentinels=[(self.plan, self.plan.settings[0])],
+            poll_ns=self.poll_interval_ns + self.nominal_period_ns,
+        )  # fmt: skip
         self._need_reset = False
         self._resync = False
         self._restart_ns: tuple[int, int] | None = None

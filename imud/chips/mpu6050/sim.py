@@ -218,6 +218,8 @@ class Mpu6050Sim(FilteredChip):
         end = min(register + length, len(image))
         if register <= R.INT_STATUS < end:
             self.int_status = 0  # INT_STATUS clears on read
+        if register <= R.WHO_AM_I < end:
+            image[R.WHO_AM_I] = self.identity(image[R.WHO_AM_I])
         return bytes(image[register:end]) + bytes(register + length - end)
 
     def write(self, register: int, data: bytes) -> None:
@@ -225,6 +227,10 @@ class Mpu6050Sim(FilteredChip):
         self.advance()
         for i, value in enumerate(data):
             self._write_one(register + i, value)
+
+    def power_on_reset(self) -> None:
+        """A brown-out: as DEVICE_RESET (defaults, asleep, FIFO empty and off, busy)."""
+        self._write_one(R.PWR_MGMT_1, PwrMgmt1.DEVICE_RESET)
 
     def _write_one(self, reg: int, value: int) -> None:
         if reg not in _WRITABLE:

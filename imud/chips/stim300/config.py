@@ -62,6 +62,9 @@ class Stim300Config(DeviceBase):
         10, description="accelerometer variant of the part number (sets its scale factor)"
     )
     line_termination: bool = Field(False, description="the unit appends CR LF to each datagram")
+    filter_hz: Literal[16, 33, 66, 131, 262] = Field(
+        262, description="the unit's low-pass filter (-3 dB): sets the group delay stamps lose"
+    )
 
     @model_validator(mode="after")
     def _link_carries_it(self) -> Stim300Config:

@@ -37,7 +37,7 @@ from imud.chips.stim300.registers import (
     Status,
 )
 from imud.clock import Clock
-from imud.errors import BusError, DeviceIdentityError
+from imud.errors import BusError, DeviceIdentityError, RegisterMismatch
 
 STANDARD_GRAVITY = 9.80665  # the datasheet's k0, m/s^2 per g
 HOST_BUFFER_BYTES = 4096  # Linux's tty receive buffer: what a stalled reader can lose beyond
@@ -47,6 +47,7 @@ START_STEP_NS = 20_000_000
 READ_MAX = 1 << 16
 # the sample's data are not valid: its cluster's values become NaN (the rest is an alarm only)
 _INVALID = int(Status.STARTUP | Status.SYSTEM_INTEGRITY | Status.CHANNEL_ERROR)
+_STARTUP = int(Status.STARTUP)
 _BITS = [(b.name or str(int(b)), int(b)) for b in Status]
 
 
@@ -58,6 +59,11 @@ class Segment:
     gap_before: bool
 
 
+# The gyro's group delay per filter -3 dB frequency (TS1524 rev.31, Table 5-3; docs/chips/
+# stim300.md). The simulator keeps its own copy: it models the unit, not this driver.
+GYRO_GROUP_DELAY_S = {262: 2.2e-3, 131: 3.7e-3, 66: 6.7e-3, 33: 12.7e-3, 16: 24.7e-3}
+
+
 class Stim300Driver:
     def __init__(self, cfg: Stim300Config, port: SerialPort, clock: Clock) -> None:
         self.cfg = cfg
@@ -66,7 +72,8 @@ class Stim300Driver:
         self.lay = layout(cfg.datagram_id, cfg.line_termination)
         self.framer = Framer(self.lay)
         self.nominal_period_ns = 1e9 / cfg.odr_hz
-        self.group_delay_ns = 0  # filter delay not modelled yet (docs/timestamps.md)
+        # the gyro's group delay at the unit's filter (docs/timestamps.md): stamps move back by it
+        self.group_delay_ns = round(GYRO_GROUP_DELAY_S[cfg.filter_hz] * 1e9)
         self.fifo_capacity = HOST_BUFFER_BYTES // self.lay.size
         span = self.fifo_capacity * self.nominal_period_ns
         self.poll_interval_ns = int(min(POLL_NS, span / 4))
@@ -82,6 +89,8 @@ class Stim300Driver:
         self.counter_gaps = 0
         self.latency_max_us = 0
         self.bytes_read = 0
+        self._streamed = False  # a datagram past start-up came since the start
+        self._reset_seen = False  # then one with the start-up bit again: the unit restarted
 
     # --- start ------------------------------------------------------------------------------
     def start(self) -> Iterator[int]:
@@ -98,6 +107,7 @@ class Stim300Driver:
             raise BusError(0, f"{self.port.port}: {e}") from e
         self.framer = Framer(self.lay, self.framer.stats)  # counts run on over restarts
         self._held, self._last_counter = [], None
+        self._streamed = self._reset_seen = False
         seen = b""
         t_end = self.clock.now_ns() + START_TIMEOUT_NS
         rows = np.zeros((0, self.lay.size), dtype=np.uint8)
@@ -160,9 +170,25 @@ class Stim300Driver:
 
     def _take(self, rows: npt.NDArray[np.uint8]) -> None:
         """Split new datagrams where the counter jumps; queue them."""
-        if not len(rows):
-            return
+        if not len(rows) or self._reset_seen:
+            return  # nothing, or what a unit that restarted sends before it is started again
         c = rows[:, self.lay.counter].astype(np.int64)
+        startup = (rows[:, self.lay.gyro_status] & _STARTUP) != 0
+        # valid data came before each datagram (in an earlier read, or earlier in this one)
+        streamed = self._streamed | (np.cumsum(~startup) - ~startup > 0)
+        if bool((startup & streamed).any()):
+            # the start-up bit after valid data, with the counter jumping: the unit reset itself
+            # (a power glitch) and counts from 0 again. Keep what came before, restart the stream
+            prev = np.concatenate([[c[0] - self.step if self._last_counter is None
+                                    else self._last_counter], c[:-1]])  # fmt: skip
+            jumped = startup & streamed & ((c - prev) % COUNTER_MODULO != self.step)
+            if bool(jumped.any()):
+                self._reset_seen = True
+                k = int(np.argmax(jumped))
+                rows, startup, c = rows[:k], startup[:k], c[:k]
+                if not len(rows):
+                    return
+        self._streamed = self._streamed or not bool(startup.all())
         prev = np.empty_like(c)
         prev[1:] = c[:-1]
         prev[0] = c[0] - self.step if self._last_counter is None else self._last_counter
@@ -175,6 +201,12 @@ class Stim300Driver:
             self._held.append(Segment(rows[a:b], gap))
 
     def read(self) -> RawBatch:
+        if self._reset_seen and not self._held:
+            raise RegisterMismatch(
+                0,
+                "the STIM300 sends its start-up status bit again after valid data: it reset "
+                "itself (power glitch?); restart the stream",
+            )
         t0 = self.clock.now_ns()
         data = self._read_port()
         t1 = self.clock.now_ns()

@@ -10,7 +10,9 @@ Modelled beyond the facts sheet (docs/chips/stim300.md), stated so it can be che
 latency field is drawn in 150-400 us (the datasheet gives only its 1000 us maximum); the three
 temperature sensors of a cluster read the die temperature plus fixed offsets of a few tenths of a
 degree; the start-up bit stays set 0.7 s (typical) after power-on, which is the simulator's
-creation.
+creation; the configured filter (`filter_hz`) is `imud.sim.filters`'s FIR with the datasheet's
+group delay and its -3 dB frequency as the noise bandwidth, gyro and accelerometer alike; a rate
+below 2000/s keeps every n-th filtered sample; the inclinometers are unfiltered white noise.
 """
 
 from __future__ import annotations
@@ -24,17 +26,20 @@ import numpy.typing as npt
 
 from imud.chips.stim300 import registers as R
 from imud.clock import Clock
-from imud.sim.chip import SampledChip
+from imud.sim.filters import FilteredChip, SensorFilter, design
 from imud.sim.physics import ChipFigures, ErrorModel
 from imud.sim.settings import SimSettings
 
 G = 9.80665
-# Datasheet figures (docs/chips/stim300.md): ARW 0.15 deg/sqrt(h) = 0.0025 deg/s/sqrt(Hz); VRW
-# 0.024 m/s/sqrt(h) = 4.0e-4 m/s^2/sqrt(Hz) = 40.8 ug/sqrt(Hz) (5/10 g); bias instability 0.5
-# deg/h and 6 ug (at 600 s). Turn-on bias, scale and misalignment: tactical-grade spreads.
+# Datasheet figures (docs/chips/stim300.md): ARW 0.15 deg/sqrt(h) and VRW 0.024 m/s/sqrt(h)
+# (5/10 g) are Allan N, the Allan deviation's -1/2 line at 1 s: 0.0025 deg/s/sqrt(Hz) and 4.0e-4
+# m/s^2/sqrt(Hz) = 40.8 ug/sqrt(Hz). The filtered model draws one-sided densities, whose Allan N
+# is density / sqrt(2) (docs/timestamps.md): so the densities are sqrt(2) times those. Bias
+# instability 0.5 deg/h and 6 ug (at 600 s). Turn-on bias, scale and misalignment: tactical-grade
+# spreads.
 FIGURES = ChipFigures(
-    accel_noise_ug_rthz=40.8,
-    gyro_noise_dps_rthz=0.0025,
+    accel_noise_ug_rthz=40.8 * math.sqrt(2),
+    gyro_noise_dps_rthz=0.0025 * math.sqrt(2),
     accel_bias_mg=0.75,
     gyro_bias_dps=0.00069,  # 2.5 deg/h
     accel_bias_instability_ug=6.0,
@@ -57,6 +62,12 @@ INCL_FIGURES = ChipFigures(
     accel_temp_drift_mg_per_c=0.02,
     gyro_temp_drift_dps_per_c=0.0,
 )
+# Group delay (s) per filter (-3 dB Hz), gyro and 10 g accelerometer (TS1524 rev.31, Tables 5-3
+# and 5-4); the accelerometer runs at 8 kHz inside, the gyro at 2 kHz. The other accelerometer
+# ranges' delays are not in the notes read: the 10 g figures stand for them.
+GYRO_DELAY_S = {262: 2.2e-3, 131: 3.7e-3, 66: 6.7e-3, 33: 12.7e-3, 16: 24.7e-3}
+ACCEL_DELAY_S = {262: 6.3e-3, 131: 7.8e-3, 66: 10.8e-3, 33: 16.8e-3, 16: 28.8e-3}
+GYRO_INTERNAL_HZ, ACCEL_INTERNAL_HZ = 2000, 8000
 LATENCY_US = (150, 400)
 LOOKAHEAD_NS = 10_000_000  # samples made in 10 ms chunks; their bytes still leave on time
 TEMP_OFFSETS_C = (0.0, 0.3, -0.2)
@@ -77,7 +88,7 @@ def _be16(v: npt.NDArray[np.int64]) -> npt.NDArray[np.uint8]:
     return np.stack([(u >> 8) & 0xFF, u & 0xFF], axis=-1).reshape(v.shape[0], -1).astype(np.uint8)
 
 
-class Stim300Sim(SampledChip):
+class Stim300Sim(FilteredChip):
     def __init__(
         self,
         settings: SimSettings,
@@ -88,8 +99,10 @@ class Stim300Sim(SampledChip):
         baud: int = 921_600,
         line_termination: bool = False,
         startup_ns: int = R.STARTUP_TYP_NS,
+        filter_hz: int = 262,
     ) -> None:
         super().__init__(settings, clock, FIGURES)
+        self.filter_hz = filter_hz
         self.ident = R.DatagramId(datagram)
         self.acc, self.incl, self.temps = R.CONTENT[self.ident]
         self.odr_hz = odr_hz
@@ -101,7 +114,9 @@ class Stim300Sim(SampledChip):
         self.incl_errors = ErrorModel(INCL_FIGURES, settings, stream=1)
         self.faults = settings.serial
         self._rng = np.random.default_rng([settings.seed, 0x5713])
+        self.startup_ns = startup_ns
         self.startup_end_ns = self.t_origin_ns + startup_ns
+        self._counter_origin = 0  # the truth index the sample counter counts from
         self._queue: deque[tuple[int, bytes]] = deque()  # (first byte's start, bytes)
         self._sent = 0  # bytes of the queue's head already out
         self._line_free_ns = 0  # the end of the last queued transmission
@@ -116,6 +131,21 @@ class Stim300Sim(SampledChip):
     @property
     def rate_hz(self) -> float:
         return self.odr_hz * (1.0 + self.clock_error)
+
+    _filter_cache: tuple[SensorFilter, SensorFilter] | None = None
+
+    def filters(self) -> tuple[SensorFilter, SensorFilter]:
+        """The configured filter's delays (the datasheet's), its -3 dB frequency taken as the
+        noise bandwidth, on each sensor's internal grid; outputs below 2000/s keep every n-th
+        filtered sample."""
+        if self._filter_cache is None:
+            bw = float(self.filter_hz)
+            gyro = design(bw, GYRO_DELAY_S[self.filter_hz], GYRO_INTERNAL_HZ,
+                          GYRO_INTERNAL_HZ // self.odr_hz)  # fmt: skip
+            accel = design(bw, ACCEL_DELAY_S[self.filter_hz], ACCEL_INTERNAL_HZ,
+                           ACCEL_INTERNAL_HZ // self.odr_hz)  # fmt: skip
+            self._filter_cache = (accel, gyro)
+        return self._filter_cache
 
     # --- physics ----------------------------------------------------------------------------
     def _produce(self, t_ns: npt.NDArray[np.int64]) -> None:
@@ -155,7 +185,7 @@ class Stim300Sim(SampledChip):
                 t3 = temp_c[:, None] + np.asarray(TEMP_OFFSETS_C)
                 counts = np.rint(t3 / R.TEMP_LSB_C).astype(np.int64)
                 cols += [_be16(counts), startup.astype(np.uint8)[:, None]]
-        counter = ((k0 + np.arange(n)) * self.step) % R.COUNTER_MODULO
+        counter = ((k0 - self._counter_origin + np.arange(n)) * self.step) % R.COUNTER_MODULO
         cols.append(counter.astype(np.uint8)[:, None])
         body = np.concatenate(cols, axis=1)
         lat_us = np.asarray(self._rng.integers(LATENCY_US[0], LATENCY_US[1] + 1, size=n))
@@ -202,6 +232,19 @@ class Stim300Sim(SampledChip):
             self.garbage_bursts += 1
             out = rng.integers(0, 256, f.garbage_bytes, dtype=np.uint8).tobytes() + out
         return out
+
+    def power_on_reset(self) -> None:
+        """A brown-out: the unit starts over. Datagrams not wholly sent by now are lost, the
+        sample grid and counter restart, and the start-up bit is set for the start-up time."""
+        now = self.clock.now_ns()
+        kept = deque(q for q in self._queue if q[0] + math.ceil(len(q[1]) * self.char_ns) <= now)
+        if len(kept) < len(self._queue) and not kept:
+            self._sent = 0  # the head was cut short: what reached the host is a fragment
+        self._queue = kept
+        self._line_free_ns = min(self._line_free_ns, now)
+        self.startup_end_ns = now + self.startup_ns
+        self._counter_origin = self.samples_produced
+        self._anchor(now)
 
     def receive(self, data: bytes) -> None:
         self.received = (self.received + data)[-256:]

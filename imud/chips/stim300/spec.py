@@ -38,6 +38,7 @@ def _sim(cfg: Stim300Config, clock: Clock) -> SimChip:
         accel_range_g=cfg.accel_range_g,
         baud=cfg.bus.baud,
         line_termination=cfg.line_termination,
+        filter_hz=cfg.filter_hz,
     )
 
 
