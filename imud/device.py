@@ -420,8 +420,11 @@ class DeviceRunner:
             "fifo_overflows": c.fifo_overflows if c else 0,
             "bus_errors": self.bus_errors,
             **{BUS_ERROR_KEYS[k]: n for k, n in self.bus_errors_by_kind.items()},
-            # frames the driver read whole but found corrupt (CRC, checksum, garbled framing)
+            # frames the driver read whole but found corrupt (CRC, checksum, garbled framing);
+            # of them, those a CRC or a checksum caught
             "garbled_transfers": c.bad_transfers if c else 0,
+            "crc_errors": c.crc_errors if c else 0,
+            "checksum_errors": c.checksum_errors if c else 0,
             "bad_registers": c.bad_registers if c else 0,
             "restarts": self.restarts,
             "resets": self.resets,

@@ -41,6 +41,8 @@ def initial_status(cfg: DeviceBase) -> dict[str, Any]:
         "bus_errors": 0,  # transfers that failed, all kinds; then per kind (imud.errors)
         **dict.fromkeys(BUS_ERROR_KEYS.values(), 0),
         "garbled_transfers": 0,  # read whole, found corrupt by the driver (CRC, checksum)
+        "crc_errors": 0,  # of those, a CRC failed
+        "checksum_errors": 0,  # of those, a checksum failed
         "bad_registers": 0,
         "restarts": 0,
         "resets": 0,  # chip resets detected by the register re-check (re-initialised)

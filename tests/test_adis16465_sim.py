@@ -250,6 +250,8 @@ def test_bad_checksums_are_counted_and_the_gap_they_leave_too() -> None:
         rig.clock.advance(400_000)
     assert rig.runner.bus_errors == 5 == rig.driver.counters.bad_transfers
     assert rig.driver.chip_status()["bad_checksums"] == 5
+    st = rig.runner.status()  # by kind in status: all five caught by the checksum
+    assert st["garbled_transfers"] == st["checksum_errors"] == 5 and st["crc_errors"] == 0
     assert len(_cat(rig)["seq"]) == published  # nothing from a bad frame was published
     rig.driver.burst_hz = 1_000_000
     rig.run(0.5)

@@ -86,4 +86,7 @@ def test_two_stim300s_through_the_daemon(tmp_path: Path) -> None:
     dmg = st["damaged"]["chip_status"]
     assert set(by["damaged"][0].channels) == {Channel.ACCEL, Channel.GYRO}
     assert dmg["crc_errors"] > 0 and dmg["resyncs"] > 0 and dmg["skipped_bytes"] > 0
+    # by kind in the device's status: every corrupt datagram was caught by its CRC
+    assert st["damaged"]["crc_errors"] == st["damaged"]["garbled_transfers"] == dmg["crc_errors"]
+    assert st["damaged"]["checksum_errors"] == 0
     assert st["damaged"]["lost_samples"] > 0

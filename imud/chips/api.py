@@ -140,7 +140,9 @@ class RawBatch:
 class DriverCounters:
     fifo_overflows: int = 0
     fifo_resets: int = 0
-    bad_transfers: int = 0
+    bad_transfers: int = 0  # read whole but corrupt, all kinds; of them:
+    crc_errors: int = 0  # a frame's CRC failed (STIM300 datagrams)
+    checksum_errors: int = 0  # a frame's checksum failed (ADIS16465 burst)
     bad_registers: int = 0
     resets: int = 0
 

@@ -129,7 +129,12 @@ def status_view(st: dict[str, Any], endpoint: str, console: Console) -> list[Ren
         if kinds:
             parts.append("bus errors by kind: " + ", ".join(kinds))
         if d.get("garbled_transfers"):
-            parts.append(f"{d['garbled_transfers']} garbled transfers")
+            of = [f"{d[k]} {k.split('_')[0].upper() if k == 'crc_errors' else 'checksum'}"
+                  for k in ("crc_errors", "checksum_errors") if d.get(k)]  # fmt: skip
+            parts.append(
+                f"{d['garbled_transfers']} garbled transfers"
+                + (f" ({', '.join(of)})" if of else "")
+            )
         line = ", ".join(parts)
         if d.get("calibration_error"):
             line += ("; " if line else "") + f"uncalibrated: {d['calibration_error']}"

@@ -286,6 +286,7 @@ class Adis16465Driver:
     # --- read -------------------------------------------------------------------------------
     def _burst_failed(self, rx: list[int], got: int, sent: int) -> BusError:
         self.counters.bad_transfers += 1
+        self.counters.checksum_errors += 1
         self.bad_checksums += 1
         if all(b == 0xFF for b in rx[2:]):
             return BusError(0, "burst read all ones: no answer on MISO")

@@ -211,7 +211,7 @@ class Stim300Driver:
         data = self._read_port()
         t1 = self.clock.now_ns()
         self._take(self.framer.feed(data))
-        self.counters.bad_transfers = self.framer.stats.crc_errors
+        self.counters.bad_transfers = self.counters.crc_errors = self.framer.stats.crc_errors
         back = round(self.wire_ns)  # newest datagram: sample -> latency -> on the wire -> read
         if not self._held:
             b = back + self._last_latency_ns
