@@ -4,10 +4,17 @@ samples (so a gap is a count of lost samples).
 A polled FIFO tells us, at each read, that its newest sample k was produced no later than the end
 of the count read (t_after) and that sample k+1 was not produced before its start (t_before). The
 chip's samples lie on a line t_k = a + k p, p being the chip's real period (its oscillator is off by
-up to a few percent). We fit that line to the midpoints of those bounds with an exponentially
-forgetting least-squares fit (O(1) per read), then shift it by the least amount that satisfies the
-hard bounds of the recent reads. Samples lost to a FIFO reset are counted from the same line: the
-chip's sample clock keeps running while its FIFO is emptied.
+up to a few percent). Together the reads' bounds leave a small polygon of feasible lines; the
+stamps follow the line through the middle of the range it allows at the newest read, with the
+middle of the periods it allows (exact, from the bounds' convex hulls: O(1) per read). The
+polygon shrinks as 1/reads at every phase the reads see, so the stamps carry no bias from where
+in its period a read happened to come, only the bus's own: a bound is as tight as the read's
+bracket, so a latch inside the bracket off its middle moves the stamps by half the difference.
+Before there is a polygon (the first reads), or when the bounds contradict each other (a driver
+whose brackets are not hard bounds), an exponentially forgetting least-squares fit to the bands'
+midpoints and the band of the recent reads stand in. Samples lost to a FIFO reset are counted from
+the same line: the chip's sample clock keeps running while its FIFO is emptied. Consecutive stamps
+of a stream without a gap keep within `SLEW` of the period: a new estimate is steered to.
 """
 
 from __future__ import annotations
@@ -19,6 +26,15 @@ import numpy as np
 import numpy.typing as npt
 
 _min, _max = np.minimum.reduce, np.maximum.reduce  # without ndarray.min's Python wrapper
+# the reads' bounds are kept for HULL_SPAN_NS of host time (the fit uses the last half to all of
+# it): long enough to pin the period to a few ppm at any poll rate, short enough that a clock
+# drifting with temperature stays within DRIFT_SLACK_NS of a straight line over it
+HULL_SPAN_NS = 20e9
+DRIFT_SLACK_NS = 2_000.0
+PERIOD_DRIFT = 1e-4  # how far a period pinned before a resync may have moved since
+# how far a stamp may step off the period from the one before it, while a continuous stream's
+# estimate moves (a fraction of the period): an error of 1 ms is worked off in 0.2 s of stream
+SLEW = 0.005
 
 
 class _Ring:
@@ -48,6 +64,53 @@ class _Ring:
         return self.n
 
 
+Point = tuple[float, float]
+
+
+def _turn(o: Point, a: Point, b: Point) -> float:
+    """> 0: o -> a -> b turns left."""
+    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+
+class _Hulls:
+    """The hard bounds of a run of reads, reduced to the ones that can matter: the lower convex
+    hull of the points (k, t_after) (the grid passes below them all) and the upper hull of the
+    points (k + 1, t_before) (it passes above them). A line clears a set of points exactly when
+    it clears their hull's vertices, and a hull of reads at every phase keeps a handful of them,
+    so the exact feasible region costs a few dozen numbers whatever the number of reads. Reads
+    come in order of k (Andrew's monotone chain: amortised O(1) a read)."""
+
+    def __init__(self, start: int, t0: float = 0.0) -> None:
+        self.start = start  # the read count when it began
+        self.t0 = t0  # the host time of its first read (relative to the reference)
+        self.below: list[Point] = []
+        self.above: list[Point] = []
+
+    def add(self, x: float, t_before: float, t_after: float) -> None:
+        _push(self.below, (x, t_after), 1.0)
+        _push(self.above, (x + 1.0, t_before), -1.0)
+
+    def merged(self, other: _Hulls) -> _Hulls:
+        """The hull of both runs' bounds (other's reads all after this one's)."""
+        out = _Hulls(self.start, self.t0)
+        for pts, side, dst in ((self.below + other.below, 1.0, out.below),
+                               (self.above + other.above, -1.0, out.above)):  # fmt: skip
+            for q in sorted(pts):
+                _push(dst, q, side)
+        return out
+
+
+def _push(h: list[Point], q: Point, side: float) -> None:
+    """Add `q` (x not below the last point's) to a lower (`side` 1) or upper (-1) hull."""
+    if h and h[-1][0] == q[0]:
+        if (h[-1][1] - q[1]) * side <= 0:
+            return  # a looser bound at the same index
+        h.pop()
+    while len(h) >= 2 and _turn(h[-2], h[-1], q) * side <= 0:
+        h.pop()
+    h.append(q)
+
+
 @dataclass(slots=True)
 class Stamped:
     """Stamps of a batch: `seq` of its first sample, chip samples lost right before it, one
@@ -66,6 +129,7 @@ class SampleClock:
         self.memory = memory_reads
         self.k_last = -1  # index of the newest delivered sample
         self.last_ts: int | None = None
+        self._ts_k = -2  # the sample index `last_ts` stamps
         self._pending_resync = False
         self._pending_restart: tuple[int, int] | None = None
         self._tps: float | None = None  # chip-counter ticks per sample, when a driver gives them
@@ -84,8 +148,17 @@ class SampleClock:
         self._vk = 0.0
         self._cky = 0.0
         self._recent = _Ring(recent)
-        self._history = _Ring(memory_reads)
-        self._bounds = (1.0, 0.0)  # (lo, hi) on the period; lo > hi means "none yet"
+        # the bounds of this segment's last HULL_SPAN_NS, in two overlapping generations (the
+        # older, used, spans half of it to all of it), and those of the segments before it that
+        # agreed with it
+        self._hulls = (_Hulls(0),) * 2
+        self._prior: _Hulls | None = None
+        self._prior_ok = True  # the last polygon agreed with the prior segments
+        self._roots = (0.0, 0.0)  # the last feasible period range (0: none)
+        self._exact = False  # the period came from the reads' bounds (not the midpoint fit)
+        self._period_bounds: tuple[float, float] | None = None  # what the bounds allow
+        # (index, host time) of the newest read's sample as the feasible polygon puts it
+        self._anchor: tuple[float, float] | None = None
         self._segment = 0
         self._segment_pending = False  # the next observation starts a new segment
 
@@ -102,6 +175,10 @@ class SampleClock:
         )
         return out
 
+    def _at(self, k: float) -> float:
+        """The fitted grid at one index (`_line` without an array's overhead)."""
+        return self._t_ref + self._my + self.period * (k - (self._k_ref + self._mk))
+
     def _observe(self, k: int, t_before: int, t_after: int, new_segment: bool = False) -> None:
         """Add one read to the fit. The slope is pooled over segments between FIFO resyncs, so a
         gap whose sample count was misjudged by one cannot bias it."""
@@ -112,6 +189,7 @@ class SampleClock:
             self._segment_pending = False
             self._seg_n = 0
             self._segment += 1
+            new_segment = True
         self._seg_n += 1
         alpha = max(1.0 / self._seg_n, 1.0 / self.memory)
         forget = 1.0 - 1.0 / self.memory
@@ -123,31 +201,141 @@ class SampleClock:
         self._vk = forget * self._vk + (1 - alpha) * dx * dx
         self._cky = forget * self._cky + (1 - alpha) * dx * dy
         self._recent.append(k, t_before, t_after, self._segment)
-        self._history.append(k, t_before, t_after, self._segment)
-        if self._count % 8 == 0:
-            self._bounds = self._slope_bounds()
+        self._add_bounds(x, t_before - self._t_ref, t_after - self._t_ref, new_segment)
+        self._anchor = None
+        poly = self._feasible()
+        if poly is not None:
+            p_lo, p_hi, c_lo, c_hi = poly
+            p = (p_lo + p_hi) / 2.0
+            if 0.9 * self.nominal < p < 1.1 * self.nominal:
+                t_new = self._at(k) + (c_lo + c_hi) / 2.0
+                self.period = p
+                self._anchor = (float(k), t_new)
+                self._exact = True
+                return
+        if self._exact and self._count - self._hulls[0].start < 8:
+            return  # a new segment too short to say more: the period is the chip's, it stays
+        # the bounds contradict each other (a driver whose brackets are not hard bounds, a clock
+        # that jumped): the midpoint fit, and the band of the recent reads
+        self._exact = False
         if self._count >= 3 and self._vk > 4.0:
             p = self._cky / self._vk
-            lo, hi = self._bounds
-            if lo <= hi:  # the reads' hard bounds beat the midpoint fit's statistics
-                p = min(max(p, lo), hi)
             # a chip is off by a few percent at most: anything else is a bad fit, keep the old
             if 0.9 * self.nominal < p < 1.1 * self.nominal:
                 self.period = p
 
-    def _slope_bounds(self, edge: int = 16) -> tuple[float, float]:
-        """The periods every pair of an early and a late read (same segment) allows:
-        t_k <= t_after and t_(k+1) > t_before for both bound the period from both sides."""
-        rows = self._history.rows()
-        rows = rows[rows[:, 3] == self._segment]
-        if len(rows) < 2 * edge:
-            return (1.0, 0.0)
-        e, late = rows[:edge, None, :], rows[None, -edge:, :]
-        dk = late[..., 0] - e[..., 0]
-        lo = np.max((late[..., 1] - e[..., 2]) / (dk + 1))
-        with np.errstate(divide="ignore"):
-            hi = np.min(np.where(dk > 1, (late[..., 2] - e[..., 1]) / (dk - 1), np.inf))
-        return float(lo), float(hi)
+    def _add_bounds(self, x: float, tb: float, ta: float, new_segment: bool) -> None:
+        old, young = self._hulls
+        if new_segment:
+            # the segments so far stay in the fit while they agree with the new one (they do
+            # unless the gap between was misjudged): their bounds are kept, hulled together
+            run = old if old.below else None
+            if run is not None and self._prior is not None and self._prior_ok:
+                run = self._prior.merged(run)
+            self._prior = run
+            old = young = _Hulls(self._count, ta)
+        elif not old.below:  # the first read (of the stream, or since a rebase)
+            old = young = _Hulls(self._count, ta)
+        elif ta - old.t0 >= HULL_SPAN_NS:  # the younger, half as long, takes over
+            old, young = young, _Hulls(self._count, ta)
+        if young is old and ta - old.t0 >= HULL_SPAN_NS / 2:
+            young = _Hulls(self._count, ta)
+        if self._prior is not None and ta - self._prior.t0 > 2 * HULL_SPAN_NS:
+            self._prior = None  # long gone: the chip's clock may have drifted since
+        old.add(x, tb, ta)
+        if young is not old:
+            young.add(x, tb, ta)
+        self._hulls = (old, young)
+
+    def _feasible(self) -> tuple[float, float, float, float] | None:
+        """The polygon of this segment's bounds with the earlier segments', or alone if they
+        disagree, or its last half alone if the whole disagrees (a clock that drifted)."""
+        old, young = self._hulls
+        if self._prior is not None:
+            both = self._polygon(self._prior.below + old.below, self._prior.above + old.above)
+            self._prior_ok = both is not None
+            if both is not None:
+                return both
+        for h in (old, young) if young is not old else (old,):
+            if self._count - h.start >= 8:
+                poly = self._polygon(h.below, h.above)
+                if poly is not None:
+                    return poly
+        return None
+
+    def _polygon(
+        self, below: list[Point], above: list[Point]
+    ) -> tuple[float, float, float, float] | None:
+        """What a set of reads allows together, exactly: the range of the chip's period and the
+        range of the newest read's sample instant (relative to the current fit there), over
+        every grid line that satisfies all of their hard bounds (None: too few reads to say,
+        or bounds that contradict each other).
+
+        Each read bounds the grid twice, t_k <= t_after and t_(k+1) > t_before (`below`, `above`:
+        those bounds' hull vertices, relative to the reference). Over many reads they leave a
+        small polygon of feasible lines (period, phase), which shrinks as 1/reads whatever the
+        reads' phases, where a fit to the bands' midpoints converges as 1/sqrt(reads) and follows
+        the pattern of the poll phases. With c the line's offset from the current fit at the
+        newest index K and d its period correction, a bound at index x, a = K - x samples older,
+        allows c <= U + d a (below) or c > L + d a (above). The lowest upper bound less the
+        highest lower one is a concave piecewise-linear function of d: the feasible d lie between
+        its two roots, found exactly by Newton's method from outside, starting next to the last
+        ones (a step or two over a dozen vertices: plain Python beats NumPy at that size); as
+        both bounds rise with d, the highest feasible c is at the largest root, the lowest at
+        the smallest."""
+        if not below or not above:
+            return None
+        k_new = below[-1][0]
+        if k_new - below[0][0] < 4:
+            return None
+        p, my, mk = self.period, self._my, self._mk
+        slack = min(DRIFT_SLACK_NS, 0.02 * p)  # a clock that drifts bends the grid a little
+        ups = [(k_new - x, y + slack - my - p * (x - mk)) for x, y in below]
+        lows = [(k_new - x, y - slack - my - p * (x - mk)) for x, y in above]
+
+        def root(d: float, side: float) -> tuple[float, float, float] | None:
+            """From outside on `side` (+1: the largest root, -1: the smallest) inwards: the
+            root and both bounds on c there."""
+            for _ in range(64):
+                hi, ai = min((u + d * a, a) for a, u in ups)
+                lo, aj = max((v + d * a, a) for a, v in lows)
+                if hi - lo >= -1e-3:
+                    return d, hi, lo
+                slope = ai - aj
+                if slope * side >= 0:
+                    return None  # no feasible line: the reads contradict each other
+                d -= (hi - lo) / slope
+            return None
+
+        # start just outside the last roots (new bounds only move them inwards), else far out
+        lo_d, hi_d = self._roots
+        margin = 1e-3 * p / max(1.0, k_new - below[0][0])
+        right = root(hi_d - p + margin, 1.0) if hi_d else None
+        if right is None or right[1] - right[2] > 1e-3:  # started inside: from far out
+            right = root(0.1 * p, 1.0)
+        left = root(lo_d - p - margin, -1.0) if lo_d else None
+        if left is None or left[1] - left[2] > 1e-3:
+            left = root(-0.1 * p, -1.0)
+        if right is None or left is None or left[0] > right[0]:
+            self._roots = (0.0, 0.0)
+            return None
+        self._roots = (p + left[0], p + right[0])
+        d_lo, d_hi = left[0], right[0]
+        known = self._period_bounds
+        if known is not None:
+            # the chip's period does not change with its FIFO: what earlier segments pinned
+            # holds in a new one that cannot say as much yet (widened for a drifting clock)
+            lo = max(d_lo, known[0] * (1 - PERIOD_DRIFT) - p)
+            hi = min(d_hi, known[1] * (1 + PERIOD_DRIFT) - p)
+            if lo <= hi:
+                d_lo, d_hi = lo, hi
+        if (d_lo, d_hi) != (left[0], right[0]):
+            c_lo = max(v + d_lo * a for a, v in lows)
+            c_hi = min(u + d_hi * a for a, u in ups)
+        else:
+            c_lo, c_hi = left[2], right[1]
+        self._period_bounds = (p + d_lo, p + d_hi)
+        return p + d_lo, p + d_hi, c_lo, c_hi
 
     def _band(self, rows: npt.NDArray[np.float64]) -> tuple[float, float]:
         k, tb, ta = rows[:, 0], rows[:, 1], rows[:, 2]
@@ -157,10 +345,15 @@ class SampleClock:
         return lo, hi
 
     def _correction(self) -> float:
-        """Shift of the fitted line to the middle of the band the recent reads allow.
+        """Shift of the fitted line to the middle of what the reads allow: the feasible polygon's
+        range at the newest read, or, before there is one, the band the recent reads allow at
+        the fitted period.
 
         Reads from before the last resync count only while they agree with the current ones: if
         a gap was misjudged by a sample, they would pull the line off by a period."""
+        if self._anchor is not None:
+            k, t = self._anchor
+            return t - self._at(k)
         if not len(self._recent):
             return 0.0
         rows = self._recent.rows(ordered=False)  # a band does not care about order
@@ -302,7 +495,7 @@ class SampleClock:
         whose next sample would have been `next_seq`: the first batch counts the gap from the
         time elapsed since, at the nominal period."""
         self.rebase()
-        self.k_last = next_seq - 1
+        self.k_last = self._ts_k = next_seq - 1
         self.last_ts = last_t_ns
 
     def rebase(self) -> None:
@@ -313,8 +506,10 @@ class SampleClock:
         # the period is kept: a reset restarts the chip's sample grid, not its oscillator, and
         # the gap until the first read of the new grid is counted with it
         self._recent.clear()
-        self._history.clear()
-        self._bounds = (1.0, 0.0)
+        self._hulls = (_Hulls(0),) * 2
+        self._prior = None
+        self._prior_ok = True
+        self._anchor = None
         self._last_tick = None  # the chip's counter restarted with it
         self._rebase = True
         self._pending_resync = False
@@ -387,11 +582,21 @@ class SampleClock:
         elif not full or self._count == 0:
             self._observe(k_new, t_before, t_after, new_segment=resync)
         ks = np.arange(first, k_new + 1, dtype=np.float64)
-        t = np.rint(self._line(ks) + self._correction()).astype(np.int64)
+        est = self._line(ks) + self._correction()
+        if self.last_ts is not None and first == self._ts_k + 1:
+            # the stream goes on (no sample missing, whatever the FIFO went through): steer
+            # from the last stamp towards the new estimate by at most SLEW of a period a
+            # sample, so consecutive stamps stay within SLEW of the period while the fit
+            # refines (a read's news would otherwise show as a step)
+            steps = np.arange(1, n + 1, dtype=np.float64)
+            cont = self.last_ts + steps * self.period
+            room = steps * (SLEW * self.period)
+            est = cont + np.clip(est - cont, -room, room)
+        t = np.rint(est).astype(np.int64)
         # strictly increasing across batches, whatever the fit did (within a batch the line
         # rises a period a sample, so only a first stamp not after the last can break it)
         if self.last_ts is not None and t[0] <= self.last_ts:
             t = np.maximum(t, self.last_ts + 1 + np.arange(n, dtype=np.int64))
         self.last_ts = int(t[-1])
-        self.k_last = k_new
+        self.k_last = self._ts_k = k_new
         return Stamped(first, lost, t, self.period)
