@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from imud.sim.chip import TRUTH_KEEP, SampledChip
+from imud.sim.chip import STAGE_NS, Measured, SampledChip
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -283,7 +283,9 @@ class FilteredChip(SampledChip):
         )
         return noise
 
-    def _produce(self, t_ns: I64) -> None:
+    stage_ns = STAGE_NS  # a FIFO chip: its samples are computed ahead (imud/sim/chip.py)
+
+    def _compute(self, t_ns: I64) -> Measured:
         fa, fg = self.filters()
         if self._noise is None:
             self._noise = (_Noise(), _Noise())
@@ -295,19 +297,17 @@ class FilteredChip(SampledChip):
         w_sig, w_noise = self._filtered(fg, t_ns, 1, e.gyro.noise, self._noise[1], motion)
         fm = e.accel.deterministic(t_s, f_sig, temp) + f_noise
         wm = e.gyro.deterministic(t_s, w_sig, temp) + w_noise
-        self._emit(t_ns, fm, wm, temp)
         delay = round(self.group_delay_ns())
         t_true = t_ns - np.int64(delay)
-        self._last_true_ns = float(t_true[-1])
+        f: F64 | None = None
+        w: F64 | None = None
         if self.record_truth:
             if delay == 0 and fa.taps.shape[0] == fg.taps.shape[0] == 1:
                 f, w = f_sig, w_sig  # unfiltered, undelayed: the motion at the latches
             else:
                 f, w = self.motion.sample((t_true - self.t_origin_ns) / 1e9)
-            self._truth.append(
-                {"index": self.samples_produced, "t_ns": t_true, "accel": f, "gyro": w,
-                 "temp": temp}
-            )  # fmt: skip
-            if len(self._truth) > TRUTH_KEEP:
-                del self._truth[: TRUTH_KEEP // 2]
-        self.samples_produced += t_ns.shape[0]
+        return Measured(t_ns, fm, wm, temp, t_true, f, w)
+
+    def _reveal(self, m: Measured) -> None:
+        super()._reveal(m)
+        self._last_true_ns = float(m.truth_t_ns[-1])

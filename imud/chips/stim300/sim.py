@@ -89,6 +89,8 @@ def _be16(v: npt.NDArray[np.int64]) -> npt.NDArray[np.uint8]:
 
 
 class Stim300Sim(FilteredChip):
+    stage_ns = 0  # a stream sent later: its datagrams are made ahead (`lookahead_ns`) instead
+
     def __init__(
         self,
         settings: SimSettings,
