@@ -117,8 +117,9 @@ def child_main(fd: int, spec: dict[str, Any]) -> int:
 
     (worker,) = build_workers(cfg, MonotonicClock(), offset, publish_for, only_bus=spec["bus"])
     worker.on_reconfigured = _acknowledge(sock)
-    for index, (next_seq, last_t_ns) in spec.get("resume", {}).items():
-        worker.runners[int(index)].resume(int(next_seq), int(last_t_ns) - offset)
+    for index, (next_seq, last_t_ns, *period) in spec.get("resume", {}).items():
+        measured = float(period[0]) if period and period[0] else None
+        worker.runners[int(index)].resume(int(next_seq), int(last_t_ns) - offset, measured)
     for index in spec.get("raw", []):
         worker.runners[int(index)].want_raw(True)
     signal.signal(signal.SIGTERM, lambda *_: worker.stop.set())

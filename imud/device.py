@@ -112,7 +112,7 @@ class DeviceRunner:
         self._loss_unlogged = 0
         self._loss_logged_ns = -(10**12)
         self._traced: str | None = None  # the unexpected error last logged with its traceback
-        self._resume: tuple[int, int] | None = None
+        self._resume: tuple[int, int, float | None] | None = None
         # (next seq, last stamp less the epoch offset) of what was published: where a
         # successor (this device restarted with new settings by a reload) continues
         self.stream_end: tuple[int, int] | None = None
@@ -132,10 +132,10 @@ class DeviceRunner:
         if self.pipeline is not None:
             self.pipeline.want_raw = on
 
-    def resume(self, next_seq: int, last_t_ns: int) -> None:
+    def resume(self, next_seq: int, last_t_ns: int, period_ns: float | None = None) -> None:
         """Continue a stream this device published before (from a bus process that died):
         `seq` goes on from `next_seq`, and the samples the outage held count as lost."""
-        self._resume = (next_seq, last_t_ns)
+        self._resume = (next_seq, last_t_ns, period_ns)
 
     # --- errors -----------------------------------------------------------------------------
     def _error(self, msg: str) -> None:

@@ -160,7 +160,7 @@ class Pipeline:
         clock: SampleClock,
         cal: CalibrationModel | None,
         epoch_offset_ns: int,
-        resume: tuple[int, int] | None = None,
+        resume: tuple[int, int, float | None] | None = None,
         tracker: GyroBiasTracker | None = None,
         group_delay_ns: int = 0,
     ) -> None:
@@ -176,7 +176,7 @@ class Pipeline:
         self.epoch_offset_ns = epoch_offset_ns
         self.period_ns = clock.period
         if resume is not None:  # a published stamp: back to the latch instant the clock fits
-            resume = (resume[0], resume[1] + group_delay_ns)
+            resume = (resume[0], resume[1] + group_delay_ns, resume[2])
         # (next seq, last stamp in host ns) of a stream to continue: the sample clock takes it
         # for reads it stamps; a driver's own stamps are shifted onto it (`_continue`)
         self._resume = resume
@@ -188,8 +188,8 @@ class Pipeline:
         """A driver that stamps its own samples counts `seq` from 0: shift it to continue the
         stream being resumed, counting the samples the time elapsed since then held."""
         if self._resume is not None and st.t_ns.size:
-            next_seq, last_t = self._resume
-            period = st.period_ns or self.period_ns
+            next_seq, last_t, measured = self._resume
+            period = measured or st.period_ns or self.period_ns
             gap = max(0, round((int(st.t_ns[0]) - last_t) / period) - 1)
             self._seq_offset = next_seq + gap - st.first_seq
             self._resume = None

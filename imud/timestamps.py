@@ -490,11 +490,14 @@ class SampleClock:
             return self.k_last + n, None, silent
         return k, advance_or_none, silent
 
-    def resume(self, next_seq: int, last_t_ns: int) -> None:
+    def resume(self, next_seq: int, last_t_ns: int, period_ns: float | None = None) -> None:
         """Continue a stream stamped elsewhere (a bus process that died) up to `last_t_ns`,
         whose next sample would have been `next_seq`: the first batch counts the gap from the
-        time elapsed since, at the nominal period."""
+        time elapsed since, at the period that stream measured (`period_ns`; else nominal: a
+        chip 2 % fast would have 2 % of a long gap miscounted)."""
         self.rebase()
+        if period_ns is not None:
+            self.period = period_ns
         self.k_last = self._ts_k = next_seq - 1
         self.last_ts = last_t_ns
 
