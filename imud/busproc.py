@@ -3,10 +3,11 @@ to Zenoh, keep its devices' status, and restart it when it dies or hangs.
 
 A bus process that keeps crashing is restarted with capped backoff (0.5 s ... 10 s, reset once it
 has run for 10 s) and shown in status (state `error`, `restarts`, `last_error`); the daemon, its
-watchdog and the other buses go on. One that stops reporting progress for `HUNG_S` (a driver
-stuck inside a bus call) is killed and restarted the same way. Counters in status add up over
-the process's lives, and a restarted process continues each device's `seq` from where the
-relayed stream stopped, counting the samples the outage held as lost.
+watchdog and the other buses go on. One that stops reporting progress for `[daemon]
+hung_after_s` (default `HUNG_S`; a driver stuck inside a bus call) is killed and restarted the
+same way. Counters in status add up over the process's lives, and a restarted process
+continues each device's `seq` from where the relayed stream stopped, counting the samples the
+outage held as lost.
 """
 
 from __future__ import annotations
@@ -45,12 +46,17 @@ log = logging.getLogger("imud.busproc")
 RESTART_MIN_NS = 500_000_000
 RESTART_MAX_NS = 10_000_000_000
 STABLE_NS = 10_000_000_000  # a process that ran this long starts its backoff over
-HUNG_S = 10.0  # no progress from the bus worker for this long: kill and restart it
+HUNG_S = 10.0  # default `[daemon] hung_after_s`: no worker progress this long, kill and restart
+# a child's first report may take this long (imports, opening the bus; seven children starting
+# at once on a busy 2-core machine took 6-10 s): only then does `hung_after_s` apply
+START_S = 30.0
+MEASURED_SAMPLES = 1000  # the relayed stream's period is trusted over at least this many
 _WIRE_HEAD = struct.Struct("<6xHQI")  # name_len, first_seq, count: the head of imud.wire
 _COUNTERS = (
     "samples", "lost_samples", "invalid_samples", "fifo_overflows", "bus_errors",
     "bad_registers", "restarts", "resets", "unexpected_errors", "publish_dropped",
-    "calibration_outside_span", "garbled_transfers", *BUS_ERROR_KEYS.values(),
+    "calibration_outside_span", "garbled_transfers", "crc_errors", "checksum_errors",
+    *BUS_ERROR_KEYS.values(),
 )  # fmt: skip
 
 Put = Callable[[bytes], Any]
@@ -67,6 +73,7 @@ class RunnerProxy:
         self._restarts = 0  # process restarts
         self.next_seq: int | None = None
         self.last_t_ns = 0
+        self._first: tuple[int, int] | None = None  # (seq, stamp) of the first sample relayed
         self.raw_wanted = False
         self.on_want_raw: Callable[[bool], None] = lambda on: None
 
@@ -103,6 +110,20 @@ class RunnerProxy:
             off = 32 + name_len + (-name_len) % 8 + 8 * (n - 1)
             self.next_seq = first_seq + n
             self.last_t_ns = int.from_bytes(payload[off : off + 8], "little", signed=True)
+            if self._first is None:
+                first = off - 8 * (n - 1)
+                t0 = int.from_bytes(payload[first : first + 8], "little", signed=True)
+                self._first = (first_seq, t0)
+
+    @property
+    def period_ns(self) -> float | None:
+        """The chip's sample period as the relayed stream measured it, over everything relayed
+        (seq counts chip samples, gaps included): a restarted child counts the gap of its
+        predecessor's death with it, not with the nominal period."""
+        if self._first is None or self.next_seq is None:
+            return None
+        samples = self.next_seq - 1 - self._first[0]
+        return (self.last_t_ns - self._first[1]) / samples if samples >= MEASURED_SAMPLES else None
 
     @property
     def state(self) -> str:
@@ -131,6 +152,7 @@ class BusProcess:
         self.key = key
         self.runners = self._proxies([RunnerProxy(d) for d in devices])
         self.spec = {**spec, "bus": key}
+        self.hung_s = float(spec["config"].get("daemon", {}).get("hung_after_s", HUNG_S))
         self.puts = puts  # per device, by kind: (data put, truth put or None, raw put)
         # a reloaded config's device list, until the child says it applied it
         self._pending: tuple[list[RunnerProxy], list[tuple[Put, Put | None, Put]]] | None = None
@@ -139,6 +161,7 @@ class BusProcess:
         self.stop = threading.Event()
         self.heartbeat_ns = time.monotonic_ns()  # the relay's own progress
         self.worker_heartbeat_ns = 0  # the child's bus worker's, from its status reports
+        self._reported = False  # the current child has sent a status report
         self.proc: subprocess.Popen[bytes] | None = None
         self.backoff = Backoff(RESTART_MIN_NS, RESTART_MAX_NS)
         self.restarts = 0
@@ -183,6 +206,7 @@ class BusProcess:
             proxies.append(p)
         self._pending = (proxies, puts)
         self.spec["config"] = config
+        self.hung_s = float(config.get("daemon", {}).get("hung_after_s", HUNG_S))
         sock = self._sock
         if sock is not None:
             with contextlib.suppress(OSError):  # gone: its successor starts from the spec
@@ -203,7 +227,7 @@ class BusProcess:
         self._take_pending(0)  # a new child starts from the spec's config, generation 0
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         resume = {
-            str(i): [r.next_seq, r.last_t_ns]
+            str(i): [r.next_seq, r.last_t_ns, r.period_ns]
             for i, r in enumerate(self.runners)
             if r.next_seq is not None
         }
@@ -218,6 +242,7 @@ class BusProcess:
         self.proc.stdin.write(json.dumps({**self.spec, "resume": resume, "raw": raw}).encode())
         self.proc.stdin.close()
         self.heartbeat_ns = self.worker_heartbeat_ns = time.monotonic_ns()
+        self._reported = False
         return ours
 
     def _relay(self, sock: socket.socket) -> str | None:
@@ -225,8 +250,9 @@ class BusProcess:
         sock.settimeout(0.5)
         while not self.stop.is_set():
             self.heartbeat_ns = time.monotonic_ns()
-            if self.heartbeat_ns - self.worker_heartbeat_ns > HUNG_S * 1e9:
-                return f"bus worker made no progress for {HUNG_S:g} s (stuck in a bus call?)"
+            limit = self.hung_s if self._reported else max(self.hung_s, START_S)
+            if self.heartbeat_ns - self.worker_heartbeat_ns > limit * 1e9:
+                return f"bus worker made no progress for {limit:g} s (stuck in a bus call?)"
             try:
                 msg = sock.recv(RECV_MAX)
             except TimeoutError:
@@ -247,6 +273,7 @@ class BusProcess:
             elif msg[:1] == STATUS:
                 body = json.loads(msg[1:])
                 self.worker_heartbeat_ns = int(body["heartbeat_ns"]) or time.monotonic_ns()
+                self._reported = True
                 if int(body.get("generation", 0)) == self._generation:
                     for r, st in zip(self.runners, body["devices"], strict=True):
                         r.update(st)

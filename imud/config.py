@@ -76,6 +76,14 @@ class DaemonSettings(BaseModel):
         "hold its interpreter lock (measured: needed for zero loss at 32 kHz on 2 vCPUs); "
         "false runs every bus as a thread of one process",
     )
+    hung_after_s: float = Field(
+        10.0,
+        ge=2.0,
+        le=600.0,
+        description="a bus process whose worker makes no progress this long (stuck inside a "
+        "bus call) is killed and restarted; longer than any bus call may legitimately block "
+        "(the longest driver wait is a chip's reset, well under 1 s)",
+    )
 
 
 class ImudConfig(BaseModel):

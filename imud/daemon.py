@@ -49,7 +49,6 @@ from imud.zsession import daemon_config
 log = logging.getLogger("imud.daemon")
 
 RELOAD_POLL_S = 1.0  # how often the config file's stat is looked at
-STALL_NS = 10_000_000_000  # a worker (thread mode) or relay silent this long: not serving
 READY_TIMEOUT_S = 30.0  # READY=1 at the latest this long after start, whatever is still starting
 
 
@@ -110,7 +109,8 @@ class Daemon:
         self.workers: list[BusWorker | BusProcess] = []
         self.publisher: PublisherThread | None = None
         self.ready = False
-        self.stall_ns = STALL_NS
+        # a worker (thread mode) or relay silent this long ([daemon] hung_after_s): not serving
+        self.stall_ns = int(cfg.daemon.hung_after_s * 1e9)
         self._stop_requested = threading.Event()
         self._reload_requested = threading.Event()
         self.session: zenoh.Session | None = None
