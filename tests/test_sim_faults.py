@@ -74,6 +74,18 @@ def test_icm_32khz_every_transfer_fault_counted_and_every_gap_exact() -> None:
     assert faults.injected[Fault.GARBLE] > 0 and st["garbled_transfers"] > 0
 
 
+@pytest.mark.xfail(
+    strict=True,
+    reason="known bug (issue 10): under frequent stalls longer than "
+    "the 4 ms FIFO (5 % of transfers, 30 ms) a gap is miscounted by ~29-30 samples "
+    "now and then, though the FIFO timestamp (70 ms wrap) could count it",
+)
+def test_icm_32khz_under_frequent_long_stalls_keeps_every_index() -> None:
+    rig = _run(ICM_32K, {"stall_rate": 5e-2, "stall_ms": 30}, seconds=3.0)
+    m = _check_accounting(rig)
+    _check_indices(rig, m, spread=8)  # stamps may trail a few samples while they are steered
+
+
 @pytest.mark.parametrize(("device"), [MPU, BMI], ids=["mpu6050", "bmi088"])
 def test_i2c_fifo_chips_through_stalls_keep_every_index(device: dict[str, Any]) -> None:
     rig = _run(device, {"stall_rate": 5e-3, "stall_ms": 20})
