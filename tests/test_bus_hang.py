@@ -25,6 +25,7 @@ import zenoh
 import imud.client as ic
 from imud.config import parse_config
 from tests.daemon_fixture import DaemonProc
+from tests.streams import Stream, mark
 
 HUNG_AFTER_S = 2.0
 CONFIG = f"""
@@ -46,32 +47,6 @@ chip = "mpu6050"
 bus = {{ kind = "sim", bus = "simB", address = 0x68 }}
 odr_hz = 50                     # its 1 kB FIFO holds 1.7 s: no scheduler delay overflows it
 """
-
-
-class Stream:
-    """One device's batches as (first_seq, count, lost_before)."""
-
-    def __init__(self, session: zenoh.Session, name: str) -> None:
-        self.sub = session.declare_subscriber(ic.data_key(name), zenoh.handlers.FifoChannel(65536))
-        self.batches: list[tuple[int, int, int]] = []
-
-    def drain(self) -> None:
-        while (s := self.sub.try_recv()) is not None:
-            b = ic.decode(s.payload.to_bytes())
-            self.batches.append((b.first_seq, b.count, b.lost_before))
-
-    def end(self) -> int:
-        return self.batches[-1][0] + self.batches[-1][1] if self.batches else -1
-
-    def missing(self, a: int, b: int) -> int:
-        """seq numbers in [a, b) that no received batch carried."""
-        got = sum(max(0, min(f + n, b) - max(f, a)) for f, n, _ in self.batches)
-        return (b - a) - got
-
-
-def _mark(dev: dict[str, Any]) -> int:
-    """Where the device's next batch's seq starts: every seq is a published or a lost sample."""
-    return int(dev["samples"]) + int(dev["lost_samples"])
 
 
 def _session(d: DaemonProc) -> zenoh.Session:
@@ -101,7 +76,7 @@ def _restarted_and_passed(marks: list[tuple[int, dict[str, dict[str, Any]]]], en
         r > marks[0][0]
         and m["stuck"]["state"] == "running"
         and m["stuck"]["lost_samples"] > lost0
-        and _mark(m["stuck"]) < end
+        and mark(m["stuck"]) < end
         for r, m in marks
     )
 
@@ -163,9 +138,9 @@ def test_a_hung_bus_worker_is_restarted_and_nothing_else_notices(tmp_path: Path)
     for (f0, n0, _), (f1, _, lost) in itertools.pairwise(stuck.batches):
         assert f1 - (f0 + n0) == lost >= 0
     r0, first = marks[0]
-    r1, last = [(r, m) for r, m in marks if _mark(m["stuck"]) <= stuck.end()][-1]
+    r1, last = [(r, m) for r, m in marks if mark(m["stuck"]) <= stuck.end()][-1]
     assert r1 > r0  # a restart between the two snapshots
-    gaps = stuck.missing(_mark(first["stuck"]), _mark(last["stuck"]))
+    gaps = stuck.missing(mark(first["stuck"]), mark(last["stuck"]))
     assert gaps > 0  # the hang cost samples
     assert gaps == last["stuck"]["lost_samples"] - first["stuck"]["lost_samples"]
     # the other bus never noticed: no restart, no gap, nothing lost

@@ -27,7 +27,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import zenoh
 
 import imud.client as ic
 import imud.sim.pty
@@ -35,6 +34,7 @@ from imud.config import load_config
 from imud.daemon import Daemon
 from imud.sim.settings import SerialFaults
 from tests.helpers import free_port, run_in_process
+from tests.streams import Stream, mark
 from tests.test_stim300_sim import rig as stim_rig
 
 CONFIG = """
@@ -64,33 +64,6 @@ seed = 22
 serial = {{ corrupt_rate = 2e-4, drop_rate = 1e-3, garbage_rate = 3e-2 }}
 """
 DAMAGE_S = 3.0
-
-
-class Stream:
-    """One device's batches as (first_seq, count, lost_before)."""
-
-    def __init__(self, session: zenoh.Session, name: str) -> None:
-        self.sub = session.declare_subscriber(ic.data_key(name), zenoh.handlers.FifoChannel(65536))
-        self.batches: list[tuple[int, int, int]] = []
-
-    def drain(self) -> None:
-        while (s := self.sub.try_recv()) is not None:
-            b = ic.decode(s.payload.to_bytes())
-            self.batches.append((b.first_seq, b.count, b.lost_before))
-
-    def end(self) -> int:
-        return self.batches[-1][0] + self.batches[-1][1] if self.batches else -1
-
-    def missing(self, a: int, b: int) -> int:
-        """seq numbers in [a, b) that no received batch carried."""
-        got = sum(max(0, min(f + n, b) - max(f, a)) for f, n, _ in self.batches)
-        return (b - a) - got
-
-
-def _mark(dev: dict[str, Any]) -> int:
-    """Where the device's next batch's seq starts: every seq is a published or a lost sample.
-    (Taken while the link is clean, so no loss is being counted as it is read.)"""
-    return int(dev["samples"]) + int(dev["lost_samples"])
 
 
 def test_serial_damage_through_the_daemon(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -148,10 +121,10 @@ def test_serial_damage_through_the_daemon(tmp_path: Path, monkeypatch: pytest.Mo
     for name in ("stim", "bno"):
         st = streams[name]
         assert b1[name]["state"] == "running"
-        assert st.end() >= _mark(b1[name]) > _mark(b0[name]), name  # the wire passed both marks
+        assert st.end() >= mark(b1[name]) > mark(b0[name]), name  # the wire passed both marks
         lost = b1[name]["lost_samples"] - b0[name]["lost_samples"]
         # every seq the subscriber never got is a sample the daemon counted as lost ...
-        assert st.missing(_mark(b0[name]), _mark(b1[name])) == lost, name
+        assert st.missing(mark(b0[name]), mark(b1[name])) == lost, name
         # ... announced in the batch right after the gap
         for (f0, n0, _), (f1, _, gap) in itertools.pairwise(st.batches):
             assert f1 - (f0 + n0) == gap >= 0, name
