@@ -179,9 +179,14 @@ class SampleClock:
         """The fitted grid at one index (`_line` without an array's overhead)."""
         return self._t_ref + self._my + self.period * (k - (self._k_ref + self._mk))
 
-    def _observe(self, k: int, t_before: int, t_after: int, new_segment: bool = False) -> None:
+    def _observe(
+        self, k: int, t_before: int, t_after: int, new_segment: bool = False, solve: bool = True
+    ) -> None:
         """Add one read to the fit. The slope is pooled over segments between FIFO resyncs, so a
-        gap whose sample count was misjudged by one cannot bias it."""
+        gap whose sample count was misjudged by one cannot bias it. `solve` False: only keep the
+        read's bounds; the feasible set is found at the next read that has samples to stamp (a
+        chip polled faster than it samples, as the ADIS16465 is at 8 polls a sample, would
+        otherwise solve it at every empty poll: measured 80 % of a core)."""
         if self._count == 0:
             self._k_ref, self._t_ref = k, t_after
         self._count += 1
@@ -202,6 +207,8 @@ class SampleClock:
         self._cky = forget * self._cky + (1 - alpha) * dx * dy
         self._recent.append(k, t_before, t_after, self._segment)
         self._add_bounds(x, t_before - self._t_ref, t_after - self._t_ref, new_segment)
+        if not solve:
+            return
         self._anchor = None
         poly = self._feasible()
         if poly is not None:
@@ -540,7 +547,7 @@ class SampleClock:
             self._pending_resync = resync
             self._pending_restart = restart if resync else None
             if not resync and not full and not self._rebase and self.k_last >= 0:
-                self._observe(self.k_last, t_before, t_after)
+                self._observe(self.k_last, t_before, t_after, solve=False)
             lost = 0
             if resync and restart is not None and self._count and not self._rebase:
                 # everything latched before the FIFO was emptied is gone: count it now, so a
