@@ -138,15 +138,7 @@ def _undeclared_ns(sim: Any, driver: Any) -> float:
     return die.group_delay_ns() - driver.group_delay_ns if isinstance(die, FilteredChip) else 0.0
 
 
-# The ICM-42688-P simulator's filter model (FilteredChip) is being brought in while its driver
-# still declares no group delay: its gap is 4-5 slots short of the true clock's. Not a reset
-# matter; strict, so it reports the day it passes.
-_ICM_FILTER = pytest.mark.xfail(reason="ICM-42688-P filter delay not yet declared", strict=True)
-
-
-@pytest.mark.parametrize(
-    "chip", [pytest.param(c, marks=_ICM_FILTER) if c == "icm42688p" else c for c in DEVICES]
-)
+@pytest.mark.parametrize("chip", list(DEVICES))
 def test_a_chip_that_resets_itself_is_found_within_100_ms_and_streams_again(
     chip: str, tmp_path: Path
 ) -> None:
