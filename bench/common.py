@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import shutil
 import socket
+import sys
+from pathlib import Path
 
 CALIBRATION_TOML = """\
 version = 1
@@ -22,3 +25,14 @@ def free_port() -> int:
         s.bind(("127.0.0.1", 0))
         port: int = s.getsockname()[1]
         return port
+
+
+def imud_executable() -> str:
+    """The `imud` console script of the Python running the bench (its venv), else on PATH."""
+    beside = Path(sys.executable).with_name("imud")
+    if beside.exists():
+        return str(beside)
+    found = shutil.which("imud")
+    if found is None:
+        raise SystemExit("cannot find the `imud` console script (is the package installed?)")
+    return found

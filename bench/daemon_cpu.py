@@ -35,7 +35,6 @@ import json
 import os
 import re
 import shlex
-import shutil
 import signal
 import subprocess
 import sys
@@ -46,20 +45,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from common import CALIBRATION_TOML, free_port
+from common import CALIBRATION_TOML, free_port, imud_executable
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 PREFIX = "imud"
-
-
-def imud_executable() -> str:
-    beside = Path(sys.executable).with_name("imud")
-    if beside.exists():
-        return str(beside)
-    found = shutil.which("imud")
-    if found is None:
-        raise SystemExit("cannot find the `imud` console script (is the package installed?)")
-    return found
 
 
 def write_config(

@@ -41,7 +41,6 @@ import itertools
 import os
 import re
 import shlex
-import shutil
 import signal
 import struct
 import subprocess
@@ -55,7 +54,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from common import free_port
+from common import free_port, imud_executable
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
@@ -111,16 +110,6 @@ class Poll:
     t: float  # seconds since the daemon started
     status: dict[str, Any]
     rss_kb: dict[str, tuple[int, int]]  # process ("daemon" or bus key) -> (pid, VmRSS kB)
-
-
-def imud_executable() -> str:
-    beside = Path(sys.executable).with_name("imud")
-    if beside.exists():
-        return str(beside)
-    found = shutil.which("imud")
-    if found is None:
-        raise SystemExit("cannot find the `imud` console script (is the package installed?)")
-    return found
 
 
 def rss_kb(pid: int) -> int | None:
