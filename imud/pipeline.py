@@ -181,8 +181,13 @@ class Pipeline:
         # for reads it stamps; a driver's own stamps are shifted onto it (`_continue`)
         self._resume = resume
         self._seq_offset = 0
+        # the newest stamp published (host ns, after the group delay): the delay follows the
+        # fitted period, which moves as the fit refines, so the clock's own guarantee (strictly
+        # increasing) is re-imposed after it is subtracted
+        self._last_out: int | None = None
         if resume is not None:
             clock.resume(*resume)
+            self._last_out = resume[1] - group_delay_ns
 
     def _continue(self, st: Stamped) -> Stamped:
         """A driver that stamps its own samples counts `seq` from 0: shift it to continue the
@@ -216,6 +221,11 @@ class Pipeline:
         t_ns = st.t_ns
         if self.group_delay_ns and t_ns.size:
             t_ns = t_ns - self.delay_ns(st.period_ns or self.period_ns)
+            last = self._last_out
+            if last is not None and t_ns[0] <= last:
+                t_ns = np.maximum(t_ns, last + 1 + np.arange(t_ns.size, dtype=np.int64))
+        if t_ns.size:
+            self._last_out = int(t_ns[-1])
         flags = sample_flags(raw)
         si = to_si(raw)
         cal = self.cal  # one model for the whole batch, whatever a reload does meanwhile

@@ -14,9 +14,11 @@ import math
 import numpy as np
 import pytest
 
+from imud.channels import Channel
 from imud.chips.adis16465.driver import Adis16465Driver
 from imud.chips.adis16465.registers import Register as AdisReg
 from imud.chips.adis16465.sim import Adis16465Sim
+from imud.chips.api import FifoRead, RawBatch, RawChannel
 from imud.chips.mpu6050.driver import group_delay_s
 from imud.chips.mpu6050.registers import DLPF_BANDWIDTHS_HZ
 from imud.chips.mpu6050.registers import Register as R
@@ -25,7 +27,9 @@ from imud.chips.stim300.driver import GYRO_GROUP_DELAY_S as STIM300_GYRO_DELAY_S
 from imud.chips.stim300.sim import Stim300Sim
 from imud.clock import VirtualClock
 from imud.config import parse_config
+from imud.pipeline import Pipeline
 from imud.sim.settings import SimSettings
+from imud.timestamps import SampleClock
 from imud.wire import decode
 from tests.helpers import concat, make_rig, match_truth
 from tests.test_stim300_sim import rig as stim_rig
@@ -222,3 +226,32 @@ def test_adis16465_stamps_mean_the_instant_of_the_motion() -> None:
     assert abs(err.mean()) < 0.05 * period
     t_s = (m["t_ns"][settled] - rig.sim.t_origin_ns) / 1e9
     assert abs(delay_of(t_s, m["gyro"][settled])) < 0.05 * period / 1e9
+
+
+def test_stamps_stay_increasing_when_the_fitted_period_moves_under_a_long_delay() -> None:
+    """The delay subtracted is so many of the chip's samples, so it follows the fitted period;
+    when the fit moves (reads whose brackets say little: here jittery brackets that are not
+    hard bounds, late reads and frequent resyncs), the delay moves with it, by the same fraction
+    of a 25 ms filter delay (1 % is 250 µs), while the clock only promises its own stamps
+    increase.
+    Published stamps must still increase strictly: a consumer integrating the gyro divides by
+    their differences."""
+    period = 1e6  # 1 kHz
+    pipe = Pipeline(SampleClock(period), None, 0, group_delay_ns=25_000_000)
+    rng = np.random.default_rng(2)  # a seed whose reads move the delay back before the fix
+    k, t_host, out = -1, 1e9, []
+    for _ in range(3000):
+        t_host += rng.choice([2e6, 5e6, 40e6], p=[0.6, 0.35, 0.05])
+        newest = int(t_host // period)
+        # now and then samples are lost (a FIFO reset): the batch is placed by its read alone
+        resync = bool(rng.random() < 0.3)
+        n = max(1, (newest - k) // 2) if resync else newest - k
+        k = newest
+        # a bracket that is not a hard bound: up to 2 periods either side
+        t0 = int(t_host - rng.uniform(0.0, 2.0) * period)
+        t1 = int(t_host + rng.uniform(0.0, 2.0) * period)
+        gyro = RawChannel(np.zeros((n, 3), dtype=np.int32), 1.0)
+        b = pipe.process(RawBatch(n, {Channel.GYRO: gyro}, FifoRead(t0, t1, resync=resync)))
+        out.append(b.t_ns)
+    t = np.concatenate(out)
+    assert np.all(np.diff(t) > 0)
