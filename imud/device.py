@@ -276,6 +276,9 @@ class DeviceRunner:
             self._read_failed(self.unexpected("read", e), now)
             return
         self._failures = max(0, self._failures - 1)
+        wanted = self.driver.next_poll_ns
+        if wanted is not None:
+            self.next_due_ns = wanted
         for batch in batches:
             self._publish(batch, now)
         self._publish_truth()

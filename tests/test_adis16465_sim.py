@@ -312,7 +312,9 @@ def test_a_sample_landing_during_the_delta_reads_publishes_invalid_deltas() -> N
     bad = (m["flags"] & SampleFlag.DELTA_ANGLE_INVALID) != 0
     assert np.all(((m["flags"] & SampleFlag.DELTA_VELOCITY_INVALID) != 0) == bad)
     races = drv.chip_status()["delta_races"]
-    assert races > 10 and np.count_nonzero(bad) == races
+    # polls locked on the sample clock start the reads right after a sample lands, so only the
+    # reads the sweep starts late overrun the next one: a few a second
+    assert races > 5 and np.count_nonzero(bad) == races
     assert np.all(np.isnan(m["DELTA_ANGLE"][bad])) and np.all(np.isfinite(m["GYRO"][bad]))
     # every delta that is published is whole: the rotation of one sample interval
     good = m["DELTA_ANGLE"][~bad][200:, 2]
@@ -341,3 +343,22 @@ def test_truth_has_one_sample_per_output_sample() -> None:
     assert np.diff(t["t_ns"]).mean() == pytest.approx(4 / 2040 * 1e9, rel=1e-6)
     np.testing.assert_allclose(t["DELTA_ANGLE"][:, 2], math.radians(100) * 4 / 2040, rtol=1e-7)
     np.testing.assert_allclose(t["GYRO"][:, 2], math.radians(100), rtol=1e-7)
+
+
+@pytest.mark.parametrize("clock_error", [-0.03, 0.0, 0.03])
+def test_polls_lock_on_the_sample_clock_about_once_a_sample(clock_error: float) -> None:
+    """Without a FIFO every sample must be read before the next replaces it. Once the chip's
+    rate is measured the polls are aimed just after each expected sample, so a poll mostly
+    finds exactly one new sample: at most 1.6 polls a sample (the fallback interval, polls
+    spread so that none is more than ~half a period apart, made about 4 at 2 kHz), and none
+    lost, with the chip's oscillator at either end of its +-3 % and polls up to 50 us late."""
+    rig = _rig({"seed": 21, "clock_error": clock_error}, model=1, dec_rate=0, deltas=False)
+    rig.run(1.0, jitter_ns=50_000)  # the rate estimate takes 400 samples: locked by now
+    assert rig.driver.next_poll_ns is not None
+    samples, duplicates = rig.runner.samples, rig.driver.duplicates
+    rig.run(2.0, jitter_ns=50_000, seed=1)
+    new = rig.runner.samples - samples
+    polls = new + rig.driver.duplicates - duplicates
+    assert new == pytest.approx(2.0 * 2000 * (1 + clock_error), rel=0.01)
+    assert polls / new <= 1.6
+    assert rig.runner.lost_samples == 0

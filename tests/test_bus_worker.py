@@ -151,6 +151,10 @@ class Flaky:
         self.group_delay_ns = inner.group_delay_ns
         self.counters = inner.counters
 
+    @property
+    def next_poll_ns(self) -> int | None:
+        return self.inner.next_poll_ns
+
     def start(self) -> Iterator[int]:
         if self.start_fails:
             self.start_fails -= 1

@@ -78,6 +78,7 @@ class ToyConfig(DeviceBase):
 class ToyDriver:
     fifo_capacity = FIFO_SAMPLES
     group_delay_ns = 0  # no filter
+    next_poll_ns: int | None = None  # a FIFO: polled at its interval
 
     def __init__(self, cfg: ToyConfig, dev: RegisterDevice, clock: Clock) -> None:
         self.dev, self.clock = dev, clock

@@ -37,6 +37,10 @@ class Hanging:
         self.group_delay_ns = inner.group_delay_ns
         self.counters = inner.counters
 
+    @property
+    def next_poll_ns(self) -> int | None:
+        return self.inner.next_poll_ns
+
     def start(self) -> Iterator[int]:
         return self.inner.start()
 

@@ -152,6 +152,10 @@ class Driver(Protocol):
 
     nominal_period_ns: float  # of the published stream
     poll_interval_ns: int
+    # an absolute host time (ns) the driver wants its next poll at, set by its last read: a chip
+    # without a FIFO is polled just after its next sample is due (phase-locked) instead of many
+    # times a period. None: `poll_interval_ns` after the poll plus the runner's phase sweep
+    next_poll_ns: int | None
     fifo_capacity: int  # samples the chip buffers (1 without a FIFO): how long a stall it survives
     # the configured low-pass filters' group delay (ns, nominal clock): the pipeline moves every
     # stamp back by it, so a stamp is the instant the motion happened (docs/timestamps.md)

@@ -52,6 +52,15 @@ POLL_LATENESS_NS = 250_000  # how late a poll may come and still find its sample
 LATENESS_SHARE = 0.25  # or this share of a period, if more (slower rates can afford it)
 MIN_GAP_SHARE = 0.25  # polls no closer than this share of a period on average, whatever
 RATE_GATE = 0.05  # an estimate further than this from nominal is not the +-3 % oscillator
+# phase-locked polls (`_lock`): aimed this share of a period around the next sample's expected
+# latch, mostly after it (the early ones bound the latch from below, for the lock and for the
+# pipeline's clock fit); a poll that finds no new sample tries again this much later
+LOCK_WINDOW_SHARE = 0.1
+LOCK_WINDOW_MIN_NS = 20_000
+LOCK_EARLY_SHARE = 0.25  # of the polls aimed inside the window, this share before the latch
+UNBRACKETED_MAX = 50  # then the rate is measured from the polls' ends: better than not at all
+LOCK_CREEP_SHARE = 0.2  # of a window: how far the aim moves earlier a sample no poll came before
+_GOLDEN = 0.6180339887
 _BURST_TX = [R.BURST_CMD >> 8, R.BURST_CMD & 0xFF] + [0] * (R.BURST_FRAME_BYTES - 2)
 _TRAILER = int(Reg.PROD_ID)  # a harmless read whose frame clocks out the last answer
 _LOWS = [int(r) for r in d.LOW_REGISTERS]
@@ -185,6 +194,11 @@ class Adis16465Driver:
         self._pending_diag = 0  # bits not yet marked on a published sample
         self._total = 0  # DATA_CNTR unwrapped
         self.rate.restart()
+        self.next_poll_ns: int | None = None  # the interval's polls until the lock has a sample
+        self._latch_ns: float | None = None  # host time the newest sample is estimated latched
+        self._not_yet_ns: int | None = None  # a poll started here found no new sample
+        self._unbracketed = 0  # new samples in a row no poll came before
+        self._sweep = 0.0
 
     # --- frames -----------------------------------------------------------------------------
     def _frame(self, tx: list[int], speed_hz: int) -> list[int]:
@@ -328,6 +342,7 @@ class Adis16465Driver:
             t_after = self.clock.now_ns()
             if polled == last:
                 self.duplicates += 1
+                self._early(t_before, t_after)
                 return RawBatch(0, {}, FifoRead(t_before, t_after))
         b_before = self.clock.now_ns()
         rx = self._frame(list(_BURST_TX), self.burst_hz)
@@ -345,6 +360,7 @@ class Adis16465Driver:
             self._note_diag(diag)
         if count == last:
             self.duplicates += 1
+            self._early(t_before, t_after)
             return RawBatch(0, {}, FifoRead(t_before, t_after))
         words = self.read_words([*self._after, _CNTR]) if self._after else []
         # the sample is ours only now: a read that failed above leaves it to count as lost
@@ -355,10 +371,23 @@ class Adis16465Driver:
             self.counter_gaps += 1
             self.samples_skipped += step - 1
         self._total += step
-        rate = self.rate.add(self._total, t_after)
+        # the latch lies after the last poll that did not see it (when it was this sample's
+        # predecessor it saw) and before this one's end: the middle of that bracket is where the
+        # rate is measured. The end alone would carry the polls' pattern into it: how late
+        # after the latch a poll comes changes when the polls lock on
+        lo = self._not_yet_ns if step == 1 else None
+        self._not_yet_ns = None
+        if lo is not None:
+            self._unbracketed = 0
+            rate = self.rate.add(self._total, (lo + t_after) // 2)
+        else:  # polls that always come late (a busy machine): the ends, rather than nothing
+            self._unbracketed += 1
+            late = self._unbracketed > UNBRACKETED_MAX
+            rate = self.rate.add(self._total, t_after) if late else self.rate.rate_hz
         if words:
             self._read_ns += 0.05 * (self.clock.now_ns() - t_before - self._read_ns)
         self._set_poll_interval()
+        self._lock(step, lo, t_after, rate)
         overtaken = bool(words) and words[-1] != count  # a new sample came during the reads
         if overtaken:
             self.overtaken += 1
@@ -405,6 +434,46 @@ class Adis16465Driver:
                 np.array([v[3:]], dtype=np.int64), self.dvel_scale * fix, invalid=invalid
             ),
         }
+
+    def _early(self, t_before: int, t_after: int) -> None:
+        """A poll found no new sample: the next one was not latched when it began. Try again
+        a window later (once locked; before, the interval's polls go on)."""
+        self._not_yet_ns = t_before
+        if self._latch_ns is not None:
+            self.next_poll_ns = t_after + self._window_ns()
+
+    def _lock(self, step: int, lo: int | None, t_after: int, rate: float | None) -> None:
+        """Place the new sample's latch and aim the next poll just after the next one's.
+
+        Without a FIFO each sample must be read before the next replaces it; polling many times
+        a period (the fallback interval) costs a bus transaction and the interpreter's time each
+        (measured: 70 % of a core at 2 kHz in the simulated daemon). Once the chip's period is
+        measured (`RateEstimator`), the estimate steps by it from sample to sample, so a poll
+        that comes late does not move it. The latch lies after the last poll that did not see
+        it: an estimate before that is pulled up to it; a sample no poll came before moves the
+        estimate a little earlier, since a late aim would otherwise never learn it is late. The
+        next poll is aimed within a window around the next latch (a golden-ratio sweep, mostly
+        after it): one before the latch finds nothing, bounds it and tries again a window
+        later."""
+        if rate is None:  # the period is not measured yet (the chip is off by up to 3 %)
+            return
+        period = 1e9 / rate
+        window = self._window_ns()
+        if self._latch_ns is None:
+            est = t_after if lo is None else (lo + t_after) / 2
+        else:
+            est = self._latch_ns + step * period
+            if lo is None:  # an aim that is late never sees it: move it earlier until a poll
+                est -= LOCK_CREEP_SHARE * window  # comes before the latch and bounds it
+            elif est <= lo:
+                est = lo + 1
+        est = min(est, t_after)
+        self._latch_ns = est
+        self._sweep = (self._sweep + _GOLDEN) % 1.0
+        self.next_poll_ns = int(est + period + (self._sweep - LOCK_EARLY_SHARE) * window)
+
+    def _window_ns(self) -> int:
+        return max(LOCK_WINDOW_MIN_NS, int(LOCK_WINDOW_SHARE * self.nominal_period_ns))
 
     def _set_poll_interval(self) -> None:
         """When to poll. Without a FIFO each sample must be read, with the words after it,

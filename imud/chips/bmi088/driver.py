@@ -100,6 +100,7 @@ class Bmi088Driver:
                 self.accel_period_ns * acc_frames / 4,
             )
         )
+        self.next_poll_ns: int | None = None  # FIFOs: polled at the interval
         self.accel_scale = d.accel_scale_ms2(cfg.accel_range_g)
         self.gyro_scale = d.gyro_scale_rads(cfg.gyro_range_dps)
         self.gyro_clock = SampleClock(self.nominal_period_ns)

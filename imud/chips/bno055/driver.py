@@ -108,6 +108,7 @@ class Bno055Driver:
 
     fifo_capacity = 1  # no FIFO: a sample survives one period in the data registers
     poll_interval_ns = 0  # the runner adds a sweeping fraction of a period
+    next_poll_ns: int | None = None
 
     def __init__(
         self,

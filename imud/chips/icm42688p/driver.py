@@ -242,6 +242,7 @@ class Icm42688pDriver:
         # A quarter of the FIFO between polls: 1 ms at 32 kHz, where the FIFO lasts 4 ms.
         # Halving it measured no better: twice the polls cost twice the interpreter time.
         self.poll_interval_ns = int(min(50e6, self.nominal_period_ns * self.fifo_capacity / 4))
+        self.next_poll_ns: int | None = None  # a FIFO: polled at its interval
         self.accel_scale = accel_scale_ms2(cfg.accel_range_g, cfg.hires)
         self.gyro_scale = gyro_scale_rads(cfg.gyro_range_dps, cfg.hires)
         self.full_scale = float(2**19 - 1 if cfg.hires else 2**15 - 1)

@@ -123,6 +123,7 @@ class Mpu6050Driver:
         self.group_delay_ns = round(group_delay_s(cfg.dlpf_hz) * 1e9)
         # a quarter of the FIFO between polls keeps it under half full with +-5 % clock error
         self.poll_interval_ns = int(min(50e6, self.nominal_period_ns * self.fifo_capacity / 4))
+        self.next_poll_ns: int | None = None  # a FIFO: polled at its interval
         self.accel_scale = accel_scale_ms2(cfg.accel_range_g)
         self.gyro_scale = gyro_scale_rads(cfg.gyro_range_dps)
         self.plan = RegisterPlan(dev, register_plan(cfg))

@@ -77,6 +77,7 @@ class Stim300Driver:
         self.fifo_capacity = HOST_BUFFER_BYTES // self.lay.size
         span = self.fifo_capacity * self.nominal_period_ns
         self.poll_interval_ns = int(min(POLL_NS, span / 4))
+        self.next_poll_ns: int | None = None  # a FIFO: polled at its interval
         self.counters = DriverCounters()
         self.step = cfg.counter_step
         baud = port.baudrate
