@@ -18,6 +18,7 @@ from typing import Any
 import pytest
 
 import imud.busworker
+import imud.reload
 from imud.buses.connect import connect
 from imud.chips.api import DeviceBase, Driver, RawBatch, SimChip
 from imud.clock import Clock
@@ -114,3 +115,64 @@ def test_a_hung_worker_stops_the_watchdog_in_thread_mode(
     silent = [p for p in pets if h + 2.0 < p < h + 3.0]
     assert not silent, silent
     assert [p for p in pets if p > h + 3.5], "petting resumed once the worker moved again"
+
+
+def test_a_frozen_event_loop_stops_the_watchdog(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """WATCHDOG=1 comes from the event loop itself, never from a thread of its own: a loop that
+    blocks (here the config file's poll hangs for 2 s, as a stat on a dead network mount does)
+    sends nothing for as long, five times the 0.4 s watchdog, so systemd would restart the
+    daemon; once the loop moves again the petting resumes."""
+    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    notify.bind(str(tmp_path / "notify"))
+    notify.settimeout(0.05)
+    monkeypatch.setenv("NOTIFY_SOCKET", str(tmp_path / "notify"))
+    monkeypatch.setenv("WATCHDOG_USEC", "400000")  # petted every 0.2 s
+    freeze = threading.Event()
+    frozen: list[float] = []
+    changed = imud.reload.ConfigFile.changed
+
+    def hanging_changed(self: imud.reload.ConfigFile) -> bool:
+        if freeze.is_set() and not frozen:
+            frozen.append(time.monotonic())
+            time.sleep(2.0)  # on the event loop's thread: nothing else of the loop runs
+            frozen.append(time.monotonic())
+        return changed(self)
+
+    monkeypatch.setattr(imud.reload.ConfigFile, "changed", hanging_changed)
+    cfg_path = tmp_path / "c.toml"
+    cfg_path.write_text(
+        f'[daemon]\nbus_processes = false\n[zenoh]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n'
+        '[[device]]\nname = "a"\nchip = "mpu6050"\nbus = { kind = "sim" }\n'
+    )
+    daemon = Daemon(load_config(cfg_path), config_path=cfg_path)
+    log: list[tuple[float, str]] = []
+
+    def listen(until: float) -> None:
+        while time.monotonic() < until:
+            with contextlib.suppress(TimeoutError):
+                log.append((time.monotonic(), notify.recv(4096).decode()))
+
+    def drive() -> None:
+        try:
+            listen(time.monotonic() + 2.0)  # started and petting
+            freeze.set()  # the next poll of the file (within a second) hangs
+            listen(time.monotonic() + 4.0)
+        finally:
+            daemon.request_stop()
+
+    try:
+        run_in_process(daemon, drive)
+    finally:
+        notify.close()
+    assert len(frozen) == 2, "the loop polled the config file"
+    start, end = frozen
+    pets = [at for at, m in log if m == "WATCHDOG=1"]
+    assert [p for p in pets if p < start], "petted before the freeze"
+    during = [p for p in pets if start + 0.05 < p < end - 0.05]
+    assert not during, during
+    before = max(p for p in pets if p <= start + 0.05)
+    after = min(p for p in pets if p >= end - 0.05)
+    assert after - before >= 2.0 > 0.4  # the watchdog's 0.4 s passed without a pet
+    assert len([p for p in pets if p > end + 0.3]) >= 2, "petting resumed"
