@@ -136,8 +136,11 @@ class SampleClock:
         self._last_tick: int | None = None  # the counter at the newest delivered sample
         self._tick_k = -1  # the sample index `_last_tick` belongs to
         self.silent_gaps = 0  # gaps only the chip's counter showed (the FIFO said nothing)
-        self._tick_u = 0  # unwrapped ticks at the newest delivered sample
-        self._tick_base = (0, 0)  # (sample index, unwrapped ticks) where the baseline starts
+        # the counter's ticks over the one-sample steps followed since the baseline began, and
+        # the number of those steps: their ratio is the ticks per sample
+        self._tick_u = 0
+        self._tick_n = 0
+        self._tps_n = 0  # the steps the current estimate came from
         self._rebase = False
         self._count = 0
         self._seg_n = 0
@@ -381,11 +384,13 @@ class SampleClock:
         self, first: int, n: int, ticks: npt.NDArray[np.int64], mod: int, advance: int | None
     ) -> None:
         """Ticks per sample of the chip's own counter, whatever the tick's unit (constant on the
-        chip's clock): the unwrapped ticks over the samples counted since the counter was last
-        followed without a break, so the estimate sharpens as 1/samples rather than staying at a
-        batch's quantisation. `advance`: unwrapped ticks from the last batch's newest packet to
-        this batch's first, when known (a batch continuing the stream, or a gap counted by
-        ticks); None starts the baseline over."""
+        chip's clock): the ticks over the samples seen one after another since the counter was
+        last followed without a break, so the estimate sharpens as 1/samples rather than staying
+        at a batch's quantisation. `advance`: unwrapped ticks from the last batch's newest packet
+        to this batch's first, when known (a batch continuing the stream, or a gap counted by
+        ticks); None starts the baseline over. A gap's ticks are left out: its sample count came
+        from this estimate, and fed back it would hold on to its own error (a gap of 1800
+        samples counted one short, measured, kept the next ones short too)."""
         if n >= 2:
             steps = np.diff(ticks) % mod
             if int(steps.max()) >= mod // 2:  # a sample apart is half a wrap: ticks say nothing
@@ -395,30 +400,41 @@ class SampleClock:
         else:
             span = 0
         if advance is None or self._last_tick is None:
-            self._tick_base = (first, 0)
-            self._tick_u = span
-        else:
+            self._tick_u, self._tick_n = span, n - 1
+        elif first == self._tick_k + 1:  # the next sample: its step counts too
             self._tick_u += advance + span
+            self._tick_n += n
+        else:
+            self._tick_u += span
+            self._tick_n += n - 1
         self._last_tick = int(ticks[-1])
         self._tick_k = first + n - 1
-        k0, u0 = self._tick_base
-        samples = first + n - 1 - k0
-        # a new baseline replaces the old estimate once it is long enough to be better (the
-        # ratio is fixed by the chip's clock tree: it changes only with its clock source)
-        if samples >= 1 and (self._tps is None or samples >= 256):
-            tps = (self._tick_u - u0) / samples
+        samples = self._tick_n
+        # the estimate follows the baseline as it grows; a new baseline replaces an older
+        # estimate once it is as long, or long enough to be good (the ratio is fixed by the
+        # chip's clock tree: it changes only with its clock source)
+        if samples >= 1 and (self._tps is None or samples >= min(256, self._tps_n)):
+            tps = self._tick_u / samples
             if tps < mod // 2:
-                self._tps = tps
+                self._tps, self._tps_n = tps, samples
 
     def _tick_index(
-        self, k_host: int, n: int, ticks: npt.NDArray[np.int64], mod: int, uncertain: float | None
+        self,
+        k_host: int,
+        n: int,
+        ticks: npt.NDArray[np.int64],
+        mod: int,
+        uncertain: float | None,
+        ahead: float = 0.0,
     ) -> tuple[int, int | None]:
         """After a gap, count the samples in it from the chip's counter (exact), using the host
         estimate only to choose how often the counter wrapped meanwhile. `uncertain`: how many
         samples the host estimate may be off (its read brackets' width; None: unknown, taken as
         a quarter wrap): while that is under half a wrap, the ticks decide; beyond it the wrap
-        count is a guess and the host's own estimate stands. Returns the index and the
-        unwrapped ticks across the gap (None: the host's count was kept)."""
+        count is a guess and the host's own estimate stands. `ahead`: how far past `k_host`
+        the middle of the host's range lies (`k_host` its earliest end), the wraps being chosen
+        around that middle. Returns the index and the unwrapped ticks across the gap (None:
+        the host's count was kept)."""
         if self._tps is None or self._last_tick is None or self.k_last < 0:
             return k_host, None
         gap = (int(ticks[0]) - self._last_tick) % mod  # from the sample at self._tick_k
@@ -427,7 +443,7 @@ class SampleClock:
             uncertain = per_wrap / 4
         if uncertain >= per_wrap / 2 - 1:
             return k_host, None
-        first_host = k_host - n + 1
+        first_host = k_host - n + 1 + ahead
         wraps = max(0, round((first_host - self._tick_k - gap / self._tps) / per_wrap))
         advance = gap + wraps * mod
         first = self._tick_k + round(advance / self._tps)
@@ -489,10 +505,17 @@ class SampleClock:
         # how far off the host's count may be: the width of the read it placed the batch by;
         # unknown for a batch that is not the newest and says nothing of when it ended
         uncertain: float | None = None
-        if not full or restart is not None:
-            lo, hi = restart if full and restart is not None else (t_before, t_after)
-            uncertain = (hi - lo) / self.period + 2
-        k, advance_or_none = self._tick_index(k_host, n, ticks, mod, uncertain)
+        ahead = 0.0
+        if full and restart is not None:
+            # the host count puts the first sample right after restart[0] (the earliest it can
+            # be), though it may have come as late as restart[1]: the wraps are chosen around
+            # the middle, so a bracket up to a wrap wide (a long stall inside the read that made
+            # room in the FIFO) still leaves the count to the chip's counter
+            ahead = max(0.0, (restart[1] - restart[0]) / self.period) / 2
+            uncertain = ahead + 2
+        elif not full:
+            uncertain = (t_after - t_before) / self.period + 2
+        k, advance_or_none = self._tick_index(k_host, n, ticks, mod, uncertain, ahead)
         if k < self.k_last + n:  # neither count can go backwards
             return self.k_last + n, None, silent
         return k, advance_or_none, silent

@@ -133,7 +133,10 @@ def test_serial_damage_through_the_daemon(tmp_path: Path, monkeypatch: pytest.Mo
     lost = b1["stim"]["lost_samples"] - b0["stim"]["lost_samples"]
     assert damaged > 10 and b1["stim_garbage"] > b0["stim_garbage"]  # the window had damage
     crc = b1["stim"]["chip_status"]["crc_errors"] - b0["stim"]["chip_status"]["crc_errors"]
-    assert 0 < crc <= damaged  # each damaged datagram failed its CRC or was never framed
+    # each CRC failure is a damaged datagram, or a garbage burst that began with the datagram's
+    # identifier where a datagram was due (on the wire the two look alike: ~1 in 256 bursts)
+    like = b1["stim_garbage_like"] - b0["stim_garbage_like"]
+    assert 0 < crc <= damaged + like
     noticed = b1["bno_noticed"] - b0["bno_noticed"]
     assert b1["bno_damage"] > b0["bno_damage"]  # bytes dropped or garbage sent in the window
     assert noticed > 0  # ... which the UART layer caught and retried
@@ -202,6 +205,7 @@ def _snapshot(
         **devs,
         "stim_damaged": stim.damaged,
         "stim_garbage": stim.garbage_bursts,
+        "stim_garbage_like": stim.garbage_like_datagrams,
         "stim_overrun": sum(x.overrun_bytes for x in links if x.die is stim),
         "bno_damage": bno.dropped + bno.garbage_bursts,
         "bno_noticed": uart["retries"] + uart["timeouts"] + uart["bad_frames"],

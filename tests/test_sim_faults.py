@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from imud.chips.icm42688p.registers import Bank0
 from imud.config import parse_config
 from imud.errors import ConfigError
 from imud.sim.faults import Fault
@@ -27,6 +28,7 @@ ICM_32K = {"chip": "icm42688p", "bus": SPI, "odr_hz": 32000, "gyro_range_dps": 2
            "accel_range_g": 4}  # fmt: skip
 MPU = {"chip": "mpu6050", "odr_hz": 1000}
 BMI = {"chip": "bmi088", "bus": I2C_PAIR[0], "gyro_bus": I2C_PAIR[1]}
+ICM_INT_STATUS = int(Bank0.INT_STATUS)
 
 
 def _run(device: dict[str, Any], faults: dict[str, Any], seconds: float = 6.0) -> Rig:
@@ -74,13 +76,11 @@ def test_icm_32khz_every_transfer_fault_counted_and_every_gap_exact() -> None:
     assert faults.injected[Fault.GARBLE] > 0 and st["garbled_transfers"] > 0
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="known bug (issue 10): under frequent stalls longer than "
-    "the 4 ms FIFO (5 % of transfers, 30 ms) a gap is miscounted by ~29-30 samples "
-    "now and then, though the FIFO timestamp (70 ms wrap) could count it",
-)
 def test_icm_32khz_under_frequent_long_stalls_keeps_every_index() -> None:
+    """5 % of transfers stall 30 ms, far longer than the 4 ms FIFO. A stall between a count
+    read and its data burst leaves packets in the stop-on-full FIFO that the next read returns
+    first, contiguous with the last batch, before the gap (issue 10: they were taken for the
+    first samples after the gap, and the gap counted twice in part, 29-33 samples too many)."""
     rig = _run(ICM_32K, {"stall_rate": 5e-2, "stall_ms": 30}, seconds=3.0)
     m = _check_accounting(rig)
     _check_indices(rig, m, spread=8)  # stamps may trail a few samples while they are steered
@@ -151,3 +151,35 @@ def test_fault_settings_are_checked_with_the_field_named() -> None:
         parse_config({"device": [{**dev, "sim": {"faults": {"outages": [{"at_s": 1.0}]}}}]})
     with pytest.raises(ConfigError, match=r"eio_rte: unknown field; did you mean 'eio_rate'"):
         parse_config({"device": [{**dev, "sim": {"faults": {"eio_rte": 0.1}}}]})
+
+
+def test_icm_stalls_after_two_count_reads_in_a_row_lose_exactly_what_the_chip_dropped() -> None:
+    """A 30 ms stall right after a count read (the bus worker preempted before the data burst
+    that count sized): the stop-on-full FIFO fills and drops samples until the burst makes room,
+    so the next read returns first the packets the burst left, right after the last batch, then,
+    past a break in their timestamps, the samples latched once there was room. Twice in a row:
+    the second read also saw the FIFO-full flag of the first drop, and its leading packets still
+    continue the stream (issue 10: they were taken for the first after the room was made, the
+    gap partly counted twice). The samples lost are exactly the ones the chip dropped."""
+    rig = _run(ICM_32K, {}, seconds=1.5)
+    chip, clock = rig.sim, rig.clock
+    answer = chip.read
+    dropped = chip.packets_dropped  # while the sensors started, before the FIFO was flushed
+    assert rig.runner.status()["lost_samples"] == 0
+    stalls = [2]
+
+    def read_then_stall(register: int, length: int) -> bytes:
+        out: bytes = answer(register, length)
+        if register == ICM_INT_STATUS and stalls[0]:  # the status and FIFO count read
+            stalls[0] -= 1
+            clock.advance(30_000_000)
+        return out
+
+    chip.read = read_then_stall
+    rig.run(1.5, jitter_ns=50_000)
+    m = _check_accounting(rig)
+    _check_indices(rig, m)
+    # each stall filled the 4 ms FIFO and dropped the rest of the 30 ms: about 830 samples
+    dropped = chip.packets_dropped - dropped
+    assert stalls[0] == 0 and dropped > 1500
+    assert rig.runner.status()["lost_samples"] == dropped

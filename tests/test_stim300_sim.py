@@ -152,7 +152,8 @@ def test_link_damage_costs_exactly_the_damaged_datagrams(seed: int) -> None:
         assert b.first_seq - (a.first_seq + a.count) == b.lost_before
     cs = driver.chip_status()
     assert 0 < cs["counter_gaps"] <= st["lost_samples"]  # adjacent damaged datagrams: one gap
-    assert 0 < cs["crc_errors"] <= sim.damaged
+    # a garbage burst that begins with the identifier where a datagram is due looks like one
+    assert 0 < cs["crc_errors"] <= sim.damaged + sim.garbage_like_datagrams
     assert driver.counters.bad_transfers == cs["crc_errors"]
 
 

@@ -257,6 +257,14 @@ class Icm42688pDriver:
         self._restart_ns: tuple[int, int] | None = None
         self.ticks_per_sample = self.nominal_period_ns / R.TICK_NS
         self._last_read_ns = 0  # when the last FIFO data read began: room was made from then
+        # the newest packet delivered: its FIFO timestamp (None: after a flush, nothing to
+        # continue), and a host time it was latched after (the count read before its own)
+        self._last_tick: int | None = None
+        self._newest_after_ns = 0
+        self._count_ns = 0  # when the last FIFO count read began
+        # how soon after the newest packet a packet must come for its 16-bit timestamp to tell
+        # the next sample from one a whole wrap later (host time, for a clock up to 10 % fast)
+        self._unwrapped_ns = 0.9 * (R.TIMESTAMP_MODULO - 1.5 * self.ticks_per_sample) * R.TICK_NS
 
     def start(self) -> Iterator[int]:
         _select_bank(self.dev, 0)  # a stale bank would make WHO_AM_I read wrong
@@ -287,6 +295,7 @@ class Icm42688pDriver:
         self._restart_ns = (t0, self.clock.now_ns())
         self._last_read_ns = t0
         self._resync = True
+        self._last_tick = None  # what comes next follows the flush, not the last packet
         self.dev.read(R.Bank0.INT_STATUS, 3)  # the first count after a flush reads 0: discard it
         self.counters.fifo_resets += 1
 
@@ -316,6 +325,7 @@ class Icm42688pDriver:
 
     def read(self) -> RawBatch:
         t_before = self.clock.now_ns()
+        prev_count, self._count_ns = self._count_ns, t_before
         head = self.dev.read(R.Bank0.INT_STATUS, 3)
         t_after = self.clock.now_ns()
         if head == b"\xff\xff\xff":  # the chip never sends this: a floating MISO line
@@ -332,6 +342,17 @@ class Icm42688pDriver:
         p = decode_packets(data, self.cfg.hires)
         if not p.clean:
             self.invalid_packets += int((p.accel_invalid & p.gyro_invalid).sum())
+        if p.n:
+            if self._resync and self._continues(int(p.timestamp[0]), t_after):
+                # the last read found the FIFO full, yet this is the next sample: the FIFO was
+                # not full at that read's count, and the chip went on filling it until the data
+                # burst made room (a stall between the two), so what the burst left comes
+                # first now. The samples it dropped meanwhile show as a break after them, and
+                # are counted there (issue 10: this batch was placed after the restart, and
+                # the gap partly counted twice). Or the chip dropped nothing at all.
+                self._resync, self._restart_ns = False, None
+            self._last_tick = int(p.timestamp[-1])
+            self._newest_after_ns = prev_count  # it was not in the FIFO at that count
         if p.n < n:
             # fewer packets than counted: a garbled burst (SPI reads 0xFF when MISO floats) or a
             # FIFO out of step. Keep what decoded, flush, and resync on the next read.
@@ -350,8 +371,21 @@ class Icm42688pDriver:
             # stop-on-full: what we read is whole and valid, but the chip dropped the samples
             # that came while it was full; space frees as we read, so the stream resumes then
             self.counters.fifo_overflows += 1
-            self._resync, self._restart_ns = True, (r0, r1)
+            # the next packet, unless it continues this batch (`_continues`), is the first the
+            # chip latched after room was made, by r1: after the count began, and after the
+            # burst began too if the FIFO was full at the count (nothing could enter before)
+            self._resync = True
+            self._restart_ns = (r0 if n == self.fifo_capacity else t_before, r1)
         return batch
+
+    def _continues(self, tick: int, t_after: int) -> bool:
+        """Whether a batch's first packet is the sample right after the newest one delivered,
+        by their FIFO timestamps: one sample apart, and too soon after it (host time) for the
+        16-bit counter to have wrapped in between. Unknown after a flush: False."""
+        if self._last_tick is None or t_after - self._newest_after_ns >= self._unwrapped_ns:
+            return False
+        step = (tick - self._last_tick) % R.TIMESTAMP_MODULO
+        return step <= 1.5 * self.ticks_per_sample
 
     def _broken(
         self, p: Packets, breaks: list[int], t_before: int, t_after: int, full: bool

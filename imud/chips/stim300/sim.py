@@ -126,6 +126,9 @@ class Stim300Sim(FilteredChip):
         self.datagrams = 0
         self.damaged = 0  # datagrams a byte of which was corrupted or dropped
         self.garbage_bursts = 0
+        # bursts whose first byte is the datagram's identifier: where a datagram is due, a host
+        # cannot tell one from a datagram that failed its CRC
+        self.garbage_like_datagrams = 0
         self.received = b""  # what the host sent (normal mode ignores it)
         self.sampling = True  # streams from power-on
         self.lookahead_ns = LOOKAHEAD_NS
@@ -232,7 +235,9 @@ class Stim300Sim(FilteredChip):
         out = b[keep].tobytes()
         if rng.random() < f.garbage_rate:
             self.garbage_bursts += 1
-            out = rng.integers(0, 256, f.garbage_bytes, dtype=np.uint8).tobytes() + out
+            junk = rng.integers(0, 256, f.garbage_bytes, dtype=np.uint8).tobytes()
+            self.garbage_like_datagrams += junk[0] == self.ident
+            out = junk + out
         return out
 
     def power_on_reset(self) -> None:
