@@ -23,12 +23,12 @@ def imud(*args: str, cwd: Path = REPO) -> subprocess.CompletedProcess[str]:
 
 
 def test_check_config_prints_a_short_summary() -> None:
-    r = imud("check-config", "configs/sim.toml")
+    r = imud("check-config", "configs/sim-all.toml")
     assert r.returncode == 0, r.stderr
     assert "Traceback" not in r.stderr
     lines = r.stdout.splitlines()
     assert len(lines) == 3 + 7  # headline, daemon, zenoh, one per device
-    assert lines[0] == "configs/sim.toml: valid, 7 devices"
+    assert lines[0] == "configs/sim-all.toml: valid, 7 devices"
     assert lines[1].startswith("daemon:") and "realtime priority 20" in lines[1]
     assert lines[2].startswith("zenoh:") and "tcp/127.0.0.1:7447" in lines[2]
     assert "peer" in lines[2] and "'imud'" in lines[2]
@@ -55,7 +55,7 @@ def test_check_config_summary_of_real_hardware() -> None:
 
 
 def test_check_config_json_is_the_full_model() -> None:
-    r = imud("check-config", "--json", "configs/sim.toml")
+    r = imud("check-config", "--json", "configs/sim-all.toml")
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout)
     assert [d["name"] for d in doc["device"]] == [

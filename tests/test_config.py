@@ -18,7 +18,8 @@ from imud.config import ImudConfig, calibration_problems, load_config
 from imud.errors import ConfigError
 
 REPO = Path(__file__).resolve().parent.parent
-SIM_TOML = REPO / "configs" / "sim.toml"
+SIM_TOML = REPO / "configs" / "sim-all.toml"
+QUICK_START_TOML = REPO / "configs" / "sim.toml"
 
 # A valid first device, so that the device under test is device[1] and the index is meaningful.
 GOOD_DEVICE = """
@@ -84,6 +85,19 @@ def numbers_after(text: str, marker: str) -> list[str]:
 
 
 # --- the shipped example -------------------------------------------------------------------------
+
+
+def test_quick_start_config_is_the_lighter_set() -> None:
+    """The README's quick start: the five devices its calibration walk-through uses, the
+    ICM-42688-P at 8 kHz (what a 2-core machine runs with the simulators and loses nothing)."""
+    cfg = load_config(QUICK_START_TOML)
+    assert [(d.name, d.chip) for d in cfg.device] == [
+        ("imu0", "mpu6050"), ("imu1", "mpu6050"), ("icm0", "icm42688p"), ("bmi0", "bmi088"),
+        ("bno0", "bno055"),
+    ]  # fmt: skip
+    assert cfg.device[2].odr_hz == 8000.0
+    assert cfg.daemon.realtime_priority == 20
+    assert cfg.zenoh.listen == ["tcp/127.0.0.1:7447"]
 
 
 def test_sim_toml_loads_with_both_devices() -> None:
