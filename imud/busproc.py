@@ -46,6 +46,10 @@ log = logging.getLogger("imud.busproc")
 RESTART_MIN_NS = 500_000_000
 RESTART_MAX_NS = 10_000_000_000
 STABLE_NS = 10_000_000_000  # a process that ran this long starts its backoff over
+# a bus process that ended cleanly (exit 0: it was sent SIGTERM) most likely got the signal with
+# the daemon (systemd's KillMode=control-group, `timeout`, `kill -- -PGID`): the daemon's own
+# stop is given this long to arrive before the end is taken for a crash and restarted
+SIGNALLED_GRACE_S = 1.0
 HUNG_S = 10.0  # default `[daemon] hung_after_s`: no worker progress this long, kill and restart
 # a child's first report may take this long (imports, opening the bus; seven children starting
 # at once on a busy 2-core machine took 6-10 s): only then does `hung_after_s` apply
@@ -302,7 +306,7 @@ class BusProcess:
                     self._sock = None
                     sock.close()
                     code = self._end_child(kill=why is not None)
-            if self.stop.is_set():
+            if self.stop.is_set() or (code == 0 and self.stop.wait(SIGNALLED_GRACE_S)):
                 return
             now = time.monotonic_ns()
             if now - started >= STABLE_NS:

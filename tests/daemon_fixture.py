@@ -16,7 +16,11 @@ from tests.helpers import free_port
 
 
 class DaemonProc:
-    def __init__(self, tmp: Path, config_body: str, watchdog_usec: int = 1_000_000) -> None:
+    def __init__(
+        self, tmp: Path, config_body: str, watchdog_usec: int = 1_000_000, session: bool = False
+    ) -> None:
+        """`session`: the daemon leads a process group of its own (its bus processes in it),
+        as under systemd, so the whole group can be signalled at once."""
         self.port = free_port()
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
         self.config = tmp / "imud.toml"
@@ -39,6 +43,7 @@ class DaemonProc:
             stdout=subprocess.DEVNULL,
             stderr=open(self.log, "wb"),  # noqa: SIM115 - owned by the process
             env=env,
+            start_new_session=session,
         )
 
     def cli(self, *args: str, timeout: float = 20.0) -> subprocess.CompletedProcess[str]:
