@@ -92,9 +92,10 @@ class _Hulls:
         self.below: list[Point] = []
         self.above: list[Point] = []
 
-    def add(self, x: float, t_before: float, t_after: float) -> None:
+    def add(self, x: float, t_before: float, t_after: float, phase: bool = True) -> None:
         _push(self.below, (x, t_after), 1.0)
-        _push(self.above, (x + 1.0, t_before), -1.0)
+        if phase:
+            _push(self.above, (x + 1.0, t_before), -1.0)
 
     def merged(self, other: _Hulls) -> _Hulls:
         """The hull of both runs' bounds (other's reads all after this one's)."""
@@ -190,13 +191,21 @@ class SampleClock:
         return self._t_ref + self._my + self.period * (k - (self._k_ref + self._mk))
 
     def _observe(
-        self, k: int, t_before: int, t_after: int, new_segment: bool = False, solve: bool = True
+        self,
+        k: int,
+        t_before: int,
+        t_after: int,
+        new_segment: bool = False,
+        solve: bool = True,
+        phase: bool = True,
     ) -> None:
         """Add one read to the fit. The slope is pooled over segments between FIFO resyncs, so a
         gap whose sample count was misjudged by one cannot bias it. `solve` False: only keep the
         read's bounds; the feasible set is found at the next read that has samples to stamp (a
         chip polled faster than it samples, as the ADIS16465 is at 8 polls a sample, would
-        otherwise solve it at every empty poll: measured 80 % of a core)."""
+        otherwise solve it at every empty poll: measured 80 % of a core). `phase` False: a batch
+        that is not the newest (a full FIFO's): only its upper bound holds (t_before is when the
+        read began, not a bound on the sample after it), so only that one enters the hulls."""
         if self._count == 0:
             self._k_ref, self._t_ref = k, t_after
         self._count += 1
@@ -216,7 +225,7 @@ class SampleClock:
         self._vk = forget * self._vk + (1 - alpha) * dx * dx
         self._cky = forget * self._cky + (1 - alpha) * dx * dy
         self._recent.append(k, t_before, t_after, self._segment)
-        self._add_bounds(x, t_before - self._t_ref, t_after - self._t_ref, new_segment)
+        self._add_bounds(x, t_before - self._t_ref, t_after - self._t_ref, new_segment, phase)
         if not solve:
             return
         if (
@@ -248,7 +257,9 @@ class SampleClock:
             if 0.9 * self.nominal < p < 1.1 * self.nominal:
                 self.period = p
 
-    def _add_bounds(self, x: float, tb: float, ta: float, new_segment: bool) -> None:
+    def _add_bounds(
+        self, x: float, tb: float, ta: float, new_segment: bool, phase: bool = True
+    ) -> None:
         old, young = self._hulls
         if new_segment:
             # the segments so far stay in the fit while they agree with the new one (they do
@@ -266,9 +277,9 @@ class SampleClock:
             young = _Hulls(self._count, ta)
         if self._prior is not None and ta - self._prior.t0 > 2 * HULL_SPAN_NS:
             self._prior = None  # long gone: the chip's clock may have drifted since
-        old.add(x, tb, ta)
+        old.add(x, tb, ta, phase)
         if young is not old:
-            young.add(x, tb, ta)
+            young.add(x, tb, ta, phase)
         self._hulls = (old, young)
 
     def _feasible(self) -> tuple[float, float, float, float] | None:
@@ -461,9 +472,44 @@ class SampleClock:
         wraps = max(0, round((first_host - self._tick_k - gap / self._tps) / per_wrap))
         advance = gap + wraps * mod
         first = self._tick_k + round(advance / self._tps)
-        if abs(first - first_host) > uncertain + 2:
-            return k_host, None  # host and chip disagree beyond the host's error: keep the host's
+        # host and chip disagree beyond the host's error: keep the host's, unless the counter
+        # steps a whole number of ticks a sample (a sample counter: learnt over 16 samples or
+        # more, no tick ratio is that close to an integer by chance), which then counts the gap
+        # exactly: the host only picked the wraps (a STIM300's host clock, its bytes handed
+        # over late by a loaded machine, placed a gap 10 samples long that was one)
+        exact = self._tps.is_integer() and self._tps_n >= 16
+        if abs(first - first_host) > uncertain + 2 and not exact:
+            return k_host, None
         return first + n - 1, advance
+
+    def _tick_index_below(
+        self, n: int, t_after: int, ticks: npt.NDArray[np.int64], mod: int
+    ) -> tuple[int, int] | None:
+        """After a gap, a batch that is not the newest (its read's bracket does not place it):
+        its newest sample still came after the last one delivered and no later than `t_after`.
+        When exactly one of the counts the chip's counter allows lies in that range, it is the
+        count, however wide the range is in host time short of a wrap (a read late by more than
+        half a wrap would otherwise leave it to the host's guess). The newest index and the
+        unwrapped ticks across the gap; None: none or several fit."""
+        tps, last_k = self._tps, self._tick_k
+        if tps is None or self._last_tick is None or self.k_last < 0:
+            return None
+        gap = (int(ticks[0]) - self._last_tick) % mod
+
+        def newest(wraps: int) -> int:
+            return last_k + round((gap + wraps * mod) / tps) + n - 1
+
+        lo = self.k_last + n
+        k_after = self._index_before(t_after)
+        # the fitted line's own error there: a couple of samples, and its period's (a few
+        # percent while a fit is young) over the samples since the last delivered one
+        hi = k_after + 2 + 0.05 * max(0, k_after - self.k_last)
+        wraps = max(0, math.floor(((lo - n + 1 - last_k) * tps - gap) / mod))
+        while newest(wraps) < lo:
+            wraps += 1
+        if newest(wraps) > hi or newest(wraps + 1) <= hi:
+            return None
+        return newest(wraps), gap + wraps * mod
 
     def _resync_index(
         self, n: int, t_before: int, t_after: int, restart: tuple[int, int] | None
@@ -516,6 +562,10 @@ class SampleClock:
             silent = True
             if not full:  # place the batch by its own read, as after a FIFO reset
                 k_host = max(self._resync_index(n, t_before, t_after, None), k_host)
+        if full and restart is None:
+            below = self._tick_index_below(n, t_after, ticks, mod)
+            if below is not None:
+                return below[0], below[1], silent
         # how far off the host's count may be: the width of the read it placed the batch by;
         # unknown for a batch that is not the newest and says nothing of when it ended
         uncertain: float | None = None
@@ -642,7 +692,9 @@ class SampleClock:
             else:
                 self._segment_pending = True
         elif not full or self._count == 0:
-            self._observe(k_new, t_before, t_after, new_segment=resync)
+            # (a full batch only as the first: its stamps need a line; its bounds are kept to the
+            # one that holds)
+            self._observe(k_new, t_before, t_after, new_segment=resync, phase=not full)
         if n == 1:  # a chip without a FIFO, once a sample: the same in scalars (NumPy's
             return self._stamp_one(first, lost)  # per-call cost is most of it at n = 1)
         ks = np.arange(first, k_new + 1, dtype=np.float64)

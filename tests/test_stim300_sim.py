@@ -189,3 +189,29 @@ def test_a_port_that_fails_is_reopened_and_the_stream_goes_on() -> None:
     assert st["state"] == "running" and port.is_open
     batches = [decode(b) for b in out]
     assert st["lost_samples"] == sum(b.lost_before for b in batches) > 0
+
+
+def test_stamps_through_link_damage_stay_within_the_latency_spread() -> None:
+    """Each read bounds the newest sample by its datagram's own latency field (an upper bound)
+    and the next one by the largest latency field seen (a lower bound), so the brackets are hard
+    and at most the simulator's latency spread (150-400 us) wider than the read; a read after
+    which a damaged datagram may already have come bounds nothing of the next sample (its
+    datagram was latched, then lost). Stamps then stay within that spread of the truth, and the
+    fitted line is the reads' exact polygon's, through a link damaging 1 % of the datagrams:
+    RMS within the 50 us of a clean bus (tests/test_timestamp_accuracy.py). (With the newest
+    datagram's latency standing in for the next one's, 1 read in 18 broke its bound: 144 us
+    RMS, 610 us at worst, the fitted period swinging 1-2 %.)"""
+    faults = {"corrupt_rate": 1e-4, "drop_rate": 5e-5, "garbage_rate": 2e-3, "garbage_bytes": 23}
+    _, clock, sim, _, runner, out, truth = rig({"seed": 3, "serial": faults}, odr_hz=1000)
+    run(clock, runner, 6.0)
+    assert sim.damaged > 40 and runner.status()["lost_samples"] == sim.damaged
+    meas, true = [decode(b) for b in out], [decode(b) for b in truth]
+    seq = np.concatenate([b.seq for b in meas])
+    t = np.concatenate([b.t_ns for b in meas])
+    index = np.concatenate([b.seq for b in true])
+    t_true = np.concatenate([b.t_ns for b in true])
+    # seq 0 is the first sample published; the truth counts from the simulator's first
+    offset = int(index[np.argmin(np.abs(t_true - t[0]))]) - int(seq[0])
+    err = (t - t_true[np.searchsorted(index, seq + offset)])[t > t[0] + 2e9]  # after a settle
+    assert np.abs(err).max() < 250_000
+    assert np.sqrt(np.mean(err.astype(np.float64) ** 2)) < 50_000

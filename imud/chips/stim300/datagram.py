@@ -186,6 +186,15 @@ class Framer:
         """Bytes held for the next read (a datagram not yet complete)."""
         return len(self._buf)
 
+    @property
+    def damaged_tail(self) -> bool:
+        """Whether a damaged datagram may have come after the last valid one: damage seen since
+        it, held bytes that cannot begin a datagram, or nearly a whole one (a byte dropped)."""
+        buf, lay = self._buf, self.lay
+        return not self._synced or (
+            len(buf) > 0 and (buf[0] != lay.ident or len(buf) >= lay.size - 2)
+        )
+
 
 def int24(rows: U8, at: int, axes: int = 3) -> I32:
     """`axes` 24-bit big-endian two's complement values from byte `at` of every row."""

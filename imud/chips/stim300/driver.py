@@ -45,6 +45,10 @@ POLL_NS = 5_000_000
 START_TIMEOUT_NS = FIRST_DATAGRAM_MAX_NS + 1_200_000_000  # first datagram, with margin
 START_STEP_NS = 20_000_000
 READ_MAX = 1 << 16
+# how far the unit's sample clock may run fast (the rev.31 datasheet states no accuracy for it;
+# the sample clock's fit rejects a period off by more): a batch that is not the newest is placed
+# at least this many of the fastest periods before the datagrams that came after it
+CLOCK_TOLERANCE = 0.1
 # the sample's data are not valid: its cluster's values become NaN (the rest is an alarm only)
 _INVALID = int(Status.STARTUP | Status.SYSTEM_INTEGRITY | Status.CHANNEL_ERROR)
 _STARTUP = int(Status.STARTUP)
@@ -84,7 +88,8 @@ class Stim300Driver:
         self.wire_ns = self.lay.size * BITS_PER_CHAR * 1e9 / baud  # a datagram on the line
         self._held: list[Segment] = []
         self._last_counter: int | None = None
-        self._last_latency_ns = 0
+        self._newest_latency_ns = 0  # the latency field of the newest datagram taken in
+        self._latency_max_ns = 0  # the largest latency field seen: bounds the next datagram's
         self.status_counts = dict.fromkeys((name for name, _ in _BITS), 0)
         self.status_seen = 0
         self.counter_gaps = 0
@@ -190,6 +195,10 @@ class Stim300Driver:
                 if not len(rows):
                     return
         self._streamed = self._streamed or not bool(startup.all())
+        lat = uint16(rows, self.lay.latency)
+        self._newest_latency_ns = int(lat[-1]) * 1000
+        self._latency_max_ns = max(self._latency_max_ns, int(lat.max()) * 1000)
+        self.latency_max_us = self._latency_max_ns // 1000
         prev = np.empty_like(c)
         prev[1:] = c[:-1]
         prev[0] = c[0] - self.step if self._last_counter is None else self._last_counter
@@ -213,20 +222,35 @@ class Stim300Driver:
         t1 = self.clock.now_ns()
         self._take(self.framer.feed(data))
         self.counters.bad_transfers = self.counters.crc_errors = self.framer.stats.crc_errors
-        back = round(self.wire_ns)  # newest datagram: sample -> latency -> on the wire -> read
+        # A datagram's sample came its latency field and its time on the wire before its last
+        # byte, which was here by t1: the newest sample was latched no later than t1 less the
+        # newest datagram's latency and wire time. The next one, not here by t0, was latched
+        # after t0 less its own latency, unknown yet: the largest seen stands in for it, so the
+        # bracket is a hard bound whatever the next latency (not if the host delivers bytes
+        # late: a USB adapter's latency timer, which no datagram field shows). Unless a damaged
+        # datagram may have come after the newest valid one by t0 (the framer holds what cannot
+        # be a clean beginning): then the next sample was latched and its datagram lost, and
+        # t_before bounds nothing (the read has no phase, as a full FIFO's)
+        wire = round(self.wire_ns)
+        t_before = t0 - wire - self._latency_max_ns
+        t_after = t1 - wire - self._newest_latency_ns
+        phase = not self.framer.damaged_tail
         if not self._held:
-            b = back + self._last_latency_ns
-            return self._batch(np.zeros((0, self.lay.size), np.uint8), t0 - b, t1 - b, False)
+            empty = np.zeros((0, self.lay.size), np.uint8)
+            return self._batch(empty, t_before, t_after, False, phase=phase)
         seg = self._held.pop(0)
         # merge queued segments that continue this one (a batch may not span a counter gap)
         while self._held and not self._held[0].gap_before:
             seg = Segment(np.concatenate([seg.rows, self._held.pop(0).rows]), seg.gap_before)
-        lat = uint16(seg.rows[-1:], self.lay.latency)
-        self._last_latency_ns = int(lat[0]) * 1000
-        self.latency_max_us = max(self.latency_max_us, int(lat[0]))
-        b = back + self._last_latency_ns
-        newest = not self._held  # later samples wait behind a gap: this batch is not the newest
-        return self._batch(seg.rows, t0 - b, t1 - b, seg.gap_before, phase=newest)
+        # later samples wait behind a gap: this batch is not the newest. Each datagram after it
+        # is a later sample, a period or more after the one before: its newest sample came at
+        # least that many (fastest) periods before the newest datagram's, which keeps its upper
+        # bound within a few samples of it however late the read (the count of a gap before it
+        # needs the host to place it to within half a counter wrap, 64 ms)
+        following = sum(len(s.rows) for s in self._held)
+        shift = math.ceil(following * self.nominal_period_ns * (1.0 - CLOCK_TOLERANCE))
+        return self._batch(seg.rows, t_before - shift, t_after - shift, seg.gap_before,
+                           phase=phase and not following)  # fmt: skip
 
     def _batch(
         self,
