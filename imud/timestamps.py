@@ -477,10 +477,15 @@ class SampleClock:
         # more, no tick ratio is that close to an integer by chance), which then counts the gap
         # exactly: the host only picked the wraps (a STIM300's host clock, its bytes handed
         # over late by a loaded machine, placed a gap 10 samples long that was one)
-        exact = self._tps.is_integer() and self._tps_n >= 16
+        exact = self._sample_counter()
         if abs(first - first_host) > uncertain + 2 and not exact:
             return k_host, None
         return first + n - 1, advance
+
+    def _sample_counter(self) -> bool:
+        """The chip's counter steps a whole number of ticks a sample (learnt over 16 samples or
+        more: no tick ratio is that close to an integer by chance): it counts samples."""
+        return self._tps is not None and self._tps.is_integer() and self._tps_n >= 16
 
     def _tick_index_below(
         self, n: int, t_after: int, ticks: npt.NDArray[np.int64], mod: int
@@ -672,11 +677,17 @@ class SampleClock:
             k_new = max(self._resync_index(n, t_before, t_after, restart), self.k_last + n)
         else:
             k_new = self.k_last + n
-        if ticks is not None and ticks_modulo:
+        segment = resync  # the bounds before a gap hold for the line after it only if the gap
+        if ticks is not None and ticks_modulo:  # was counted exactly
             k_new, advance, silent = self._counted(k_new, n, t_before, t_after, resync, full,
                                                    restart, ticks, ticks_modulo)  # fmt: skip
             self._learn_ticks(k_new - n + 1, n, ticks, ticks_modulo, advance)
             resync = resync or silent
+            # a sample counter (whole ticks a sample) that followed the gap counts it exactly:
+            # the same line goes on. A new segment would drop the polygon's settling (solving
+            # at every read, merging hulls): an ADIS16465 losing samples on a busy machine spent
+            # more on that than on reading, and so lost more
+            segment = resync and not (advance is not None and self._sample_counter())
         first = k_new - n + 1
         lost = first - (self.k_last + 1) if self.k_last >= 0 else 0
         if resync and restart is not None and self._count:
@@ -694,7 +705,7 @@ class SampleClock:
         elif not full or self._count == 0:
             # (a full batch only as the first: its stamps need a line; its bounds are kept to the
             # one that holds)
-            self._observe(k_new, t_before, t_after, new_segment=resync, phase=not full)
+            self._observe(k_new, t_before, t_after, new_segment=segment, phase=not full)
         if n == 1:  # a chip without a FIFO, once a sample: the same in scalars (NumPy's
             return self._stamp_one(first, lost)  # per-call cost is most of it at n = 1)
         ks = np.arange(first, k_new + 1, dtype=np.float64)
