@@ -121,25 +121,28 @@ def test_serial_damage_through_the_daemon(tmp_path: Path, monkeypatch: pytest.Mo
     for name in ("stim", "bno"):
         st = streams[name]
         assert b1[name]["state"] == "running"
-        assert st.end() >= mark(b1[name]) > mark(b0[name]), name  # the wire passed both marks
+        # the wire passed both marks
+        assert st.end() >= mark(b1[name]) > mark(b0[name]), (name, st.end(), b0[name], b1[name])
         lost = b1[name]["lost_samples"] - b0[name]["lost_samples"]
         # every seq the subscriber never got is a sample the daemon counted as lost ...
-        assert st.missing(mark(b0[name]), mark(b1[name])) == lost, name
+        missing = st.missing(mark(b0[name]), mark(b1[name]))
+        assert missing == lost, (name, missing, lost)
         # ... announced in the batch right after the gap
         for (f0, n0, _), (f1, _, gap) in itertools.pairwise(st.batches):
             assert f1 - (f0 + n0) == gap >= 0, name
 
     damaged = b1["stim_damaged"] - b0["stim_damaged"]
     lost = b1["stim"]["lost_samples"] - b0["stim"]["lost_samples"]
-    assert damaged > 10 and b1["stim_garbage"] > b0["stim_garbage"]  # the window had damage
+    # the window had damage
+    assert damaged > 10 and b1["stim_garbage"] > b0["stim_garbage"], (damaged, b0, b1)
     crc = b1["stim"]["chip_status"]["crc_errors"] - b0["stim"]["chip_status"]["crc_errors"]
     # each CRC failure is a damaged datagram, or a garbage burst that began with the datagram's
     # identifier where a datagram was due (on the wire the two look alike: ~1 in 256 bursts)
     like = b1["stim_garbage_like"] - b0["stim_garbage_like"]
-    assert 0 < crc <= damaged + like
+    assert 0 < crc <= damaged + like, (crc, damaged, like)
     noticed = b1["bno_noticed"] - b0["bno_noticed"]
     assert b1["bno_damage"] > b0["bno_damage"]  # bytes dropped or garbage sent in the window
-    assert noticed > 0  # ... which the UART layer caught and retried
+    assert noticed > 0, b1["bno"]["chip_status"]  # ... which the UART layer caught and retried
 
     # exactly the damaged datagrams are lost, nothing else (each extra one took an overrun byte)
     overrun = b1["stim_overrun"] - b0["stim_overrun"]
