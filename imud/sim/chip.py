@@ -24,7 +24,7 @@ that does to it, applied at the instant itself, with the samples before it made 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -191,15 +191,28 @@ class SampledChip:
             return
         k_max = math.floor((now - self.grid_origin_ns) / period)
         if self.lookahead_ns and k_max >= self.next_k:
-            ahead = now + self.lookahead_ns
-            if self._resets_ns:  # nothing ahead of a brown-out
-                ahead = max(now, min(ahead, self._resets_ns[0] - 1))
-            k_max = math.floor((ahead - self.grid_origin_ns) / period)
-        while self.next_k <= k_max:
-            k_end = min(k_max, self.next_k + CHUNK - 1)
-            ks = np.arange(self.next_k, k_end + 1, dtype=np.float64)
-            self._produce(np.floor(self.grid_origin_ns + ks * period).astype(np.int64))
+            k_max = self._horizon(now, self.lookahead_ns, period)
+        for k_end, t_ns in self._grid(self.next_k, k_max, period):
+            self._produce(t_ns)
             self.next_k = k_end + 1
+
+    def _horizon(self, now: int, span_ns: int, period: float) -> int:
+        """The newest grid index up to `span_ns` past `now`, never across a scheduled brown-out
+        (what comes after one is the restarted chip's)."""
+        ahead = now + span_ns
+        if self._resets_ns:
+            ahead = max(now, min(ahead, self._resets_ns[0] - 1))
+        return math.floor((ahead - self.grid_origin_ns) / period)
+
+    def _grid(
+        self, k0: int, k_max: int, period: float
+    ) -> Iterator[tuple[int, npt.NDArray[np.int64]]]:
+        """Grid indices k0..k_max in chunks of at most CHUNK: (last index, instants)."""
+        while k0 <= k_max:
+            k_end = min(k_max, k0 + CHUNK - 1)
+            ks = np.arange(k0, k_end + 1, dtype=np.float64)
+            yield k_end, np.floor(self.grid_origin_ns + ks * period).astype(np.int64)
+            k0 = k_end + 1
 
     def _stage(self, now: int, period: float) -> None:
         """Compute the samples due by `now` and `stage_ns` beyond, if not computed yet."""
@@ -208,14 +221,8 @@ class SampledChip:
         assert self._staged is not None
         if math.floor((now - self.grid_origin_ns) / period) < self._stage_k:
             return  # what is due is computed already
-        ahead = now + self.stage_ns
-        if self._resets_ns:  # nothing computed across a brown-out
-            ahead = max(now, min(ahead, self._resets_ns[0] - 1))
-        k_max = math.floor((ahead - self.grid_origin_ns) / period)
-        while self._stage_k <= k_max:
-            k_end = min(k_max, self._stage_k + CHUNK - 1)
-            ks = np.arange(self._stage_k, k_end + 1, dtype=np.float64)
-            t_ns = np.floor(self.grid_origin_ns + ks * period).astype(np.int64)
+        for k_end, t_ns in self._grid(self._stage_k, self._horizon(now, self.stage_ns, period),
+                                      period):  # fmt: skip
             self._staged.append((self._stage_k, self._compute(t_ns)))
             self._stage_k = k_end + 1
 
