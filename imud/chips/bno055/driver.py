@@ -25,19 +25,20 @@ import math
 import threading
 import time
 from collections.abc import Iterator
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
 
 from imud.buses.registers import RegisterDevice
 from imud.channels import Channel
-from imud.chips.api import DriverCounters, FifoRead, RawBatch, RawChannel
+from imud.chips.api import ChipCounter, DriverCounters, FifoRead, RawBatch, RawChannel
 from imud.chips.bno055 import registers as R
 from imud.chips.bno055.config import MODES, Bno055Config, parse_axis_remap
 from imud.chips.bno055.grid import SampleGrid
 from imud.chips.bno055.offsets import Offsets, OffsetsError, load_offsets, write_atomic
-from imud.chips.bno055.uart import CHUNK_GAP_NS, Bno055Uart
+from imud.chips.bno055.uart import Bno055Uart
+from imud.chips.bno055.uartpoll import PROBE_LEN, UartPoller
 from imud.chips.regplan import RegisterPlan, RegisterSetting
 from imud.clock import Clock
 from imud.errors import BusError, DeviceIdentityError, RegisterMismatch
@@ -57,6 +58,7 @@ _WITH_MAG = frozenset({int(R.OprMode.NDOF), int(R.OprMode.NDOF_FMC_OFF), int(R.O
 _CALIB_ALL = int(R.CALIB_FULL)
 _CALIB_NO_MAG = R.CALIB_SYS.mask | R.CALIB_GYR.mask | R.CALIB_ACC.mask
 _DATA_BYTES = 45  # ACC ... GRV and TEMP: the bytes that change with each new sample
+COUNTER_MODULO = 1 << 62  # the driver's own count of samples: it never wraps
 QUAT_NORM_RANGE = (0.9, 1.1)  # a valid fusion quaternion has |q| = 1 within a few LSB
 
 
@@ -103,12 +105,24 @@ def config_plan(cfg: Bno055Config) -> list[RegisterSetting]:
     ]
 
 
+@dataclass(frozen=True, slots=True)
+class Held:
+    """A new sample read, with what its read said of it: its bracket and the grid's range of
+    indices it may have (in that grid epoch)."""
+
+    body: bytes
+    stat: int
+    tb: int
+    ta: int
+    epoch: int
+    seen: tuple[int, int]
+
+
 class Bno055Driver:
     """Polled burst reads of a BNO055 over I2C or UART. Blocking; owned by its bus's worker."""
 
     fifo_capacity = 1  # no FIFO: a sample survives one period in the data registers
     poll_interval_ns = 0  # the runner adds a sweeping fraction of a period
-    next_poll_ns: int | None = None
 
     def __init__(
         self,
@@ -128,8 +142,8 @@ class Bno055Driver:
         self.nominal_period_ns = 1e9 / R.FUSION_RATE_HZ
         self.group_delay_ns = 0  # the filters' delay is not published (docs/timestamps.md)
         self.grid = SampleGrid(self.nominal_period_ns, CLOCK_TOLERANCE)
-        # from a read's start to the chip's snapshot: the request's chunks on a UART
-        self._latch_lead_ns = CHUNK_GAP_NS if uart is not None else 0
+        self.poller = UartPoller(self.grid) if uart is not None else None
+        self.next_poll_ns: int | None = None  # over a UART: the poller's plan
         self.calib_mask = _CALIB_ALL if int(self.mode) in _WITH_MAG else _CALIB_NO_MAG
         self.plan = RegisterPlan(dev, config_plan(cfg))
         self.mode_plan = RegisterPlan(
@@ -153,7 +167,14 @@ class Bno055Driver:
 
     def _reset_state(self) -> None:
         self.grid.reset()
-        self._prev: bytes | None = None
+        self._prev: bytes | None = None  # the sample delivered last
+        self._last_prefix = b""  # the previous read's first PROBE_LEN bytes (UART)
+        self._last_body = b""  # the previous read's data bytes (I2C)
+        self._ref: tuple[int, int, int] | None = None  # (grid epoch, index, ticks) of the last
+        # sample delivered whose index was pinned
+        self._held: Held | None = None  # a new sample whose index the next read pins
+        self._pub_mid: float | None = None  # and the middle of its host-time bounds
+        self._ticks = 0  # samples counted up to it: the batches' counter
         self._force_resync = False
         self._last_new_ns = self.clock.now_ns()
         self.calib: dict[str, int] | None = None
@@ -326,49 +347,159 @@ class Bno055Driver:
         if self._save_phase:
             return self._save_step()
         t0 = self.clock.now_ns()
+        if self.poller is not None:
+            batch = self._read_uart(t0)
+            self.next_poll_ns = self.poller.next_read(self.clock.now_ns(), self._held is not None)
+            return batch
         due = self.grid.next_due()
-        if due is not None and t0 + self._latch_lead_ns < due:
+        if due is not None and t0 < due:
             # the read would latch before the next sample can exist: a repeat for sure. Leave
             # the bus alone; a later poll comes closer to the sample
             self.skipped_polls += 1
             return RawBatch(0, {}, FifoRead(t0, t0))
-        data = self.dev.read(P0.ACC_DATA_X_LSB, R.DATA_BURST_LEN)
+        data = self._burst(R.DATA_BURST_LEN)
         t1 = self.clock.now_ns()
-        if len(data) != R.DATA_BURST_LEN:
+        body = data[:_DATA_BYTES]
+        new, self._last_body = body != self._last_body, body
+        return self._take(data, t1, t0, t1, new)
+
+    def _burst(self, length: int) -> bytes:
+        data = self.dev.read(P0.ACC_DATA_X_LSB, length)
+        if len(data) != length:
             self.counters.bad_transfers += 1
-            raise BusError(0, f"burst from 0x08: {len(data)} of {R.DATA_BURST_LEN} bytes")
-        tb, ta = self.uart.latch if self.uart is not None else (t0, t1)
+            raise BusError(0, f"burst from 0x08: {len(data)} of {length} bytes")
+        return data
+
+    def _read_uart(self, t0: int) -> RawBatch:
+        """A probe or a full read, as the poller says (uartpoll.py). A read is new to the grid
+        when its first PROBE_LEN bytes differ from the previous read's, probe or not."""
+        assert self.uart is not None and self.poller is not None
+        probe = self.poller.probe_now(self._held is not None)
+        data = self._burst(PROBE_LEN if probe else R.DATA_BURST_LEN)
+        t1 = self.clock.now_ns()
+        tb, ta = self.uart.latch
+        self.poller.note(t0, tb, ta, probe)
+        prefix = data[:PROBE_LEN]
+        new, self._last_prefix = prefix != self._last_prefix, prefix
+        if not probe:
+            return self._take(data, t1, tb, ta, new)
+        empty = not any(prefix)
+        self.grid.observe(tb, ta, new=new and not empty)
+        if new and not empty:
+            self._last_new_ns = t1
+        else:
+            self._no_news(empty, t1)
+        m = self.grid.newest()
+        if m is not None and self._ref == (self.grid.epoch, m, self._ticks):
+            return RawBatch(0, {}, FifoRead(tb, ta))  # the newest delivered is still the newest
+        # the chip has a sample not yet delivered: this read does not bound the newest
+        # delivered one's successor, so it says nothing of the clock's phase (`fifo_full`)
+        return RawBatch(0, {}, FifoRead(tb, ta, fifo_full=True))
+
+    def _count(self, tb: int, ta: int, forced: bool, epoch: int, seen: tuple[int, int]) -> FifoRead:
+        """The stamping of a new sample whose grid index (in grid epoch `epoch`) is one of
+        `seen`, with the samples counted up to it as a counter of whole ticks a sample (the
+        pipeline counts gaps by it exactly). Exact when the index is pinned and the grid has
+        followed it on one numbering from the last sample whose index was (grid.py). Otherwise
+        the count since the sample delivered last is estimated from the grid's bounds at its
+        period, within what the grid's numbering allows, and counted as `suspected_missed`; a
+        later pinned sample counts from the last exact one again, so a misjudged gap does not
+        carry over."""
+        g = self.grid
+        period = (g.p_lo + g.p_hi) / 2
+        a, b = seen
+        current = epoch == g.epoch and g.lo is not None
+        k = a
+        if current:
+            # of the indices allowed, the newest whose window's middle the bracket's middle has
+            # passed: the likeliest (each has the read's bracket overlapping its window)
+            while k < b and sum(g.bounds(k + 1)) / 2 <= (tb + ta) / 2:
+                k += 1
+            mid = sum(g.bounds(k)) / 2
+            # the grid's bounds on this sample and the next are the reads'
+            tb, ta = max(tb, int(g.bounds(a + 1)[0])), min(ta, int(g.bounds(b)[1]))
+        else:
+            mid = (tb + ta - period) / 2  # the newest at the latch: after tb - P, by ta
+        last = self._ticks
+        ref = self._ref
+        if ref is not None and current and ref[0] == epoch:
+            lo_t, hi_t = ref[2] + a - ref[1], ref[2] + b - ref[1]
+            ticks = ref[2] + k - ref[1]
+        else:
+            lo_t, hi_t = last + 1, None
+            ticks = last + (1 if self._pub_mid is None else round((mid - self._pub_mid) / period))
+        exact = hi_t == lo_t or self._pub_mid is None
+        if ticks <= last:  # a gap misjudged before: it cannot be taken back
+            ticks, exact = last + 1, False
+        if not exact:
+            self.suspected_missed += 1
+        if current and a == b:
+            self._ref = (epoch, a, ticks)
+        self._pub_mid = mid
+        step, self._ticks = ticks - last, ticks
+        counter = ChipCounter(np.array([ticks], dtype=np.int64), COUNTER_MODULO)
+        return FifoRead(tb, ta, resync=forced or step != 1, counter=counter)
+
+    def _no_news(self, empty: bool, t1: int) -> None:
+        if empty and self._prev is not None:
+            # zeros where there were data: a chip back in CONFIG mode after a reset of its
+            # own reads so at once; asking OPR_MODE now finds it well within 100 ms
+            self._check_mode()
+        if t1 - self._last_new_ns > STALE_NS:
+            self._stale(t1)
+
+    def _take(self, data: bytes, t1: int, tb: int, ta: int, new: bool) -> RawBatch:
+        """A full burst latched within [tb, ta]; `new`: its sample is not the previous read's.
+
+        A new sample whose index the grid cannot pin (the read straddled a sample's window) is
+        held back, not delivered with a guessed count: the next read pins it (over a UART the
+        poller places that read to; over I2C the next polls come within a period) and tells
+        which of its possible indices it had, by repeating it or not."""
         stat = self.calib_stat = data[_DATA_BYTES]
         self.calib = decode_calib(stat)
         body = data[:_DATA_BYTES]
-        if body == self._prev or not any(body[:44]):
-            # nothing new: the same sample again, or all zeros (no sample yet after a mode
-            # switch, or a chip back in CONFIG mode after a reset of its own)
-            if body == self._prev:
-                self.repeated_reads += 1
-            else:
+        empty = not any(body[:44])  # no sample yet after a mode switch, or a chip back in CONFIG
+        g = self.grid
+        g.observe(tb, ta, new=new and not empty)
+        held, m = self._held, g.newest()
+        if held is not None and body == held.body:  # the held sample again
+            self.repeated_reads += 1
+            if m is not None and held.epoch == g.epoch:
+                self._held = None
+                return self._deliver(held, (m, m))
+            self._no_news(False, t1)
+            return RawBatch(0, {}, FifoRead(tb, ta, fifo_full=True))
+        if empty or body == self._prev:
+            if empty:
                 self.empty_reads += 1
-            self.grid.observe(tb, ta, new=False)  # the next sample came after tb
-            if self._prev is not None and body != self._prev:
-                # zeros where there were data: a chip back in CONFIG mode after a reset of its
-                # own reads so at once; asking OPR_MODE now finds it well within 100 ms
-                self._check_mode()
-            if t1 - self._last_new_ns > STALE_NS:
-                self._stale(t1)
+            else:
+                self.repeated_reads += 1
+            self._no_news(empty, t1)
             return RawBatch(0, {}, FifoRead(tb, ta))
-        # more than one step on the chip's sample grid since the previous new sample? (grid.py)
+        self._last_new_ns = t1
+        sample = Held(body, stat, tb, ta, g.epoch, g.seen)
+        if m is None and g.lo is not None and held is None:
+            self._held = sample  # the next read tells which sample it was
+            return RawBatch(0, {}, FifoRead(tb, ta, fifo_full=True))
+        self._held = None
+        if held is None:
+            return self._deliver(sample, g.seen)
+        # the held sample is older than this one: its index below this one's lowest
+        first = self._deliver(held, (held.seen[0], min(held.seen[1], g.seen[0] - 1)))
+        first.then = self._deliver(sample, g.seen)
+        return first
+
+    def _deliver(self, s: Held, seen: tuple[int, int]) -> RawBatch:
+        """A new sample out, its grid index one of `seen` (in its epoch)."""
         forced, self._force_resync = self._force_resync, False
-        gap = self.grid.observe(tb, ta, new=True) and not forced
-        if gap:
-            self.suspected_missed += 1
-        self._prev, self._last_new_ns = body, t1
-        resync = gap or forced
-        batch = self._decode(body, FifoRead(tb, ta, resync=resync))
+        timing = self._count(s.tb, s.ta, forced, s.epoch, seen)
+        self._prev = s.body
+        batch = self._decode(s.body, timing)
         if (
             self.cfg.save_offsets
             and self.fusion
             and not self._save_tried
-            and stat & self.calib_mask == self.calib_mask
+            and s.stat & self.calib_mask == self.calib_mask
         ):
             self._begin_save()
         return batch
@@ -452,6 +583,9 @@ class Bno055Driver:
             "sys_status": self.sys_status,
             "sys_err": self.sys_err,
         }
-        if self.uart is not None:
-            out["uart"] = self.uart.stats.as_dict()
+        out["phase_losses"] = self.grid.phase_losses
+        if self.uart is not None and self.poller is not None:
+            out["uart"] = self.uart.stats.as_dict() | {
+                "probes": self.poller.probes,  # short reads that find the sample grid's phase
+            }
         return out

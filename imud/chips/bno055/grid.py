@@ -22,6 +22,8 @@ from __future__ import annotations
 import math
 
 MAX_STEPS = 100_000  # a longer gap is not worth enumerating: the phase is lost anyway
+BROKEN_WIDEN = 2.0  # the period's bounds after a contradiction, times their width before
+BROKEN_MIN_HALF = 1e-4  # and at least this share of the period either side
 REFINE_AFTER = 20  # grid steps between anchor and reference before the period bounds are used
 
 
@@ -29,6 +31,7 @@ class SampleGrid:
     def __init__(self, period_ns: float, tolerance: float, jitter_ns: float = 200_000.0) -> None:
         self.prior = (period_ns * (1.0 - tolerance), period_ns * (1.0 + tolerance))
         self.jitter = jitter_ns
+        self.epoch = 0
         self.reset()
 
     def reset(self) -> None:
@@ -39,6 +42,7 @@ class SampleGrid:
 
     def new_phase(self) -> None:
         """The chip restarted its output (a mode switch): the period holds, the phase does not."""
+        self.epoch += 1  # the numbering of grid points restarts: indices of two epochs differ
         self.r = 0  # index of the reference grid point
         self.lo: float | None = None  # bounds of the reference (an ideal grid point)
         self.hi = 0.0
@@ -60,6 +64,16 @@ class SampleGrid:
     def _hi(self, k: int) -> float:
         d = k - self.r
         return self.hi + d * (self.p_hi if d >= 0 else self.p_lo)
+
+    def newest(self) -> int | None:
+        """Index of the newest sample seen, when the reads pin it to one grid point."""
+        if self.lo is None or self.seen[0] != self.seen[1]:
+            return None
+        return self.seen[0]
+
+    def bounds(self, k: int) -> tuple[float, float]:
+        """Earliest and latest host time of grid point k (output jitter included)."""
+        return self._lo(k) - self.jitter, self._hi(k) + self.jitter
 
     def next_due(self) -> float | None:
         """The earliest instant the sample after the newest seen can exist (None: unknown)."""
@@ -129,10 +143,15 @@ class SampleGrid:
             self.p_lo, self.p_hi = max(self.p_lo, p_lo), min(self.p_hi, p_hi)
 
     def _lose_phase(self, new: bool, tb: int, ta: int, broke: bool = False) -> bool:
-        """Start the phase over from this read (numbering from it); the period too if the
-        bounds broke."""
+        """Start the phase over from this read (numbering from it). If the bounds broke, a read
+        was taken for a repeat that was not one (two samples alike to the last byte: a chip at
+        rest can do that) more likely than the chip's period moved: the period's bounds widen
+        BROKEN_WIDEN times (within the prior) rather than go back to the prior, which would cost
+        seconds of probing to learn again."""
         if broke:
-            self.p_lo, self.p_hi = self.prior
+            mid, half = (self.p_lo + self.p_hi) / 2, (self.p_hi - self.p_lo) / 2 * BROKEN_WIDEN
+            half = max(half, BROKEN_MIN_HALF * mid)
+            self.p_lo, self.p_hi = max(self.prior[0], mid - half), min(self.prior[1], mid + half)
         last_tb = self.last_tb
         self.new_phase()
         self.last_tb = last_tb

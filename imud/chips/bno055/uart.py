@@ -170,6 +170,7 @@ class Bno055Uart:
             self.port.reset_input_buffer()  # stale input would be taken for the answer
             t_sent = self._send(bytes([_START, op, register, length]) + data)
             head = self.port.read(2)
+            t_head = self.clock.now_ns()
             if len(head) < 2:
                 self.stats.timeouts += 1
                 got = f" (only {head.hex()})" if head else ""
@@ -190,7 +191,12 @@ class Bno055Uart:
                 body = self.port.read(length)
                 t_done = self.clock.now_ns()
                 if len(body) == length:
-                    t_after = t_done - int((2 + length) * self.char_ns)
+                    # the answer began no later than its head's and its whole length's time
+                    # on the wire before each arrived: the head bounds it tighter when the
+                    # tail came late (a USB adapter's frames, a busy host)
+                    t_after = min(
+                        t_head - int(2 * self.char_ns), t_done - int((2 + length) * self.char_ns)
+                    )
                     self.latch = (t_sent, max(t_sent, t_after))
                     return body
                 self.stats.timeouts += 1

@@ -1,0 +1,138 @@
+"""When to read a BNO055 over its UART, and whether with a short probe or the whole burst.
+
+Over a 115200-baud UART a full read (46 bytes, a 2 ms pause inside the request, a serial
+adapter's millisecond frames) takes 8-10 ms from one request to the next: about the chip's
+100 Hz period. Read back to back, two full reads rarely latch within one period, so almost none
+is a repeat, and a new read alone places its sample only within a period plus a bracket: the
+sample grid (grid.py) never learned its phase, and every read left the count of samples since
+the previous one to a guess (measured before this module: a sample miscounted every second or
+so, stamps 2-3 ms off).
+
+So the phase is found with probes: reads of only the first PROBE_LEN bytes (accelerometer,
+magnetometer, gyroscope: they change with every sample), about 7 ms apart, until the grid has
+pinned a sample and narrowed its period to LOCKED_PERIOD_NS (a second or two after start).
+Probes are aimed at the middle of the next sample's window, so whether they find it or not,
+the window halves (down to about a probe's bracket). Then full reads are placed: each starts so
+its request goes in just after the next sample surely exists and its bracket ends before the
+one after can: its index is certain, and a sample the link had no time for is counted exactly.
+When the window has grown too wide for that (the period's residual error adds up), a few aimed
+probes narrow it again. A read the scheduler made late straddles a window now and then: the
+driver holds that sample back and the next full read, placed after the last sample it can be,
+tells which one it was.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections import deque
+
+from imud.chips.bno055.grid import SampleGrid
+
+PROBE_LEN = 18  # ACC, MAG, GYR: 0x08-0x19
+ACQUIRE_PROBES = 8  # probes in a row while the phase or the period is not known yet
+MAX_PROBES = 8  # tightening in a row; twice as many, and a full read goes out regardless
+LOCKED_PERIOD_NS = 100_000  # the period's bounds this narrow: reads may follow probes
+MARGIN_NS = 1_000_000  # room left on either side of a placed full read's typical bracket
+TIGHTEN_NS = 1_500_000  # how much narrower than needed probing leaves the window
+FLOOR_NS = 300_000  # probes narrow a window to about their bracket (and the jitter allowed)
+EARLY_NS = 300_000  # a placed full read's request goes in this long after a sample surely is
+LATE_MARGIN_NS = 500_000  # a full read the link is late for still needs this much room
+TIMING_READS = 32  # recent full reads the request and bracket times are taken from
+
+
+class UartPoller:
+    """The probe-or-read decision and the next read's start, from the grid's bounds and the
+    link's recent timing."""
+
+    def __init__(self, grid: SampleGrid) -> None:
+        self.grid = grid
+        # per kind of read (probe, full): from its start to its request being in, and the
+        # width of its latch bracket
+        self._timed: dict[bool, tuple[deque[int], deque[int]]] = {
+            kind: (deque(maxlen=TIMING_READS), deque(maxlen=TIMING_READS)) for kind in (True, False)
+        }
+        self.probes = 0
+        self.streak = 0  # probes since the last full read
+        self._tightening = False
+
+    def note(self, t0: int, tb: int, ta: int, probe: bool) -> None:
+        """A read that began at t0 latched within [tb, ta]."""
+        self.probes += probe
+        self.streak = self.streak + 1 if probe else 0
+        lead, bracket = self._timed[probe]
+        lead.append(tb - t0)
+        bracket.append(ta - tb)
+
+    def probe_now(self, held: bool = False) -> bool:
+        """Probe instead of reading it all: the newest sample's index is not pinned (no phase
+        yet, or a read that straddled a sample's window), or the next sample's window leaves
+        too little room after it for a full read's bracket with MARGIN_NS on either side. Once
+        probing, on until the window is TIGHTEN_NS narrower than that (or as narrow as a
+        bracket allows), so a few probes buy many placed reads."""
+        g = self.grid
+        m = g.newest()
+        timing = self._timing(probe=False)
+        if held and g.lo is not None and timing is not None:
+            return False  # a straddled sample is held: a placed full read tells its index
+        if m is None or g.p_hi - g.p_lo > LOCKED_PERIOD_NS:
+            # (the period still too rough for a window to hold over a few reads); a full read
+            # every ACQUIRE_PROBES all the same, so data flows even over a link too damaged or
+            # too late for the phase ever to pin
+            return self.streak < ACQUIRE_PROBES
+        if timing is None:
+            return False  # a full read first: its timing is what probes aim with
+        bracket = timing[1]
+        lo, hi = g.bounds(m + 1)
+        room = g.p_lo - bracket - 2 * MARGIN_NS  # the widest window a full read can be placed by
+        probed = self._timing(probe=True)
+        floor = (probed[1] if probed else bracket) + 2 * g.jitter + FLOOR_NS
+        limit = max(room - TIGHTEN_NS, floor) if self._tightening else room
+        if self._tightening and self.streak >= MAX_PROBES:
+            limit = max(limit, room)  # probes stopped paying: read as soon as a read fits
+        self._tightening = hi - lo > limit and self.streak < 2 * MAX_PROBES
+        return self._tightening
+
+    def _timing(self, probe: bool) -> tuple[float, float] | None:
+        """A probe's or a full read's typical time from its start to its request being in, and
+        its latch bracket's typical width (medians: a read the scheduler delays straddles a
+        window now and then, and the grid says so; planning for the worst would skip a sample
+        a read)."""
+        lead, bracket = self._timed[probe]
+        if not lead:
+            return None
+        return statistics.median(lead), statistics.median(bracket)
+
+    def next_read(self, now: int, held: bool = False) -> int:
+        """When the next read should start. A probe: aimed to split the next sample's window
+        (its request in at the window's middle less half a bracket: latching before the
+        sample raises the window's lower bound to the request's instant, after it lowers the
+        upper one to the bracket's end). A full read: its request in EARLY_NS after the next
+        sample surely exists, if its bracket then ends LATE_MARGIN_NS before the one after can
+        exist (it latches that sample for certain); if the link is too late for that, the same
+        after the following sample, and the one in between is lost, counted exactly.
+
+        `held`: the driver holds a sample whose read straddled a window, its index one of the
+        grid's `seen` range: a full read placed after the range's last sample finds that one
+        exactly, and whether it repeats the held sample or not tells which the held one was."""
+        g = self.grid
+        probe = self.probe_now(held)
+        timing = self._timing(probe)
+        if g.lo is None or timing is None:
+            return now
+        lead, bracket = timing
+        if held and not probe:
+            first = g.seen[1]
+        else:
+            m = g.newest()
+            if m is None:
+                return now
+            if probe:
+                lo, hi = g.bounds(m + 1)
+                return max(now, int((lo + hi - bracket) / 2 - lead))
+            first = m + 1
+        for k in (first, first + 1):
+            after_k, before_next = g.bounds(k)[1], g.bounds(k + 1)[0]
+            start = max(now, int(after_k + EARLY_NS - lead))
+            if start + lead + bracket + LATE_MARGIN_NS <= before_next:
+                return start
+        return now
