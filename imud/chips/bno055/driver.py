@@ -2,13 +2,13 @@
 (docs/chips/bno055.md).
 
 The chip has no FIFO and no sample counter: its data registers hold the newest 100 Hz output.
-The driver polls at that rate (the device runner spreads the polls over each period) with one
-burst read of ACC ... GRV, TEMP and CALIB_STAT (46 bytes from 0x08). A read whose data bytes
-equal the previous read's found no new sample (n = 0). Whether a sample can have been skipped
-follows from the read brackets: the sample after the last one seen was produced after the
-previous read's `t_before`, and a skip needs a second one by this read's `t_after`, a period
-later. When the brackets allow that, the batch says `resync` and the fitted sample clock counts
-the gap; the reads that allowed it are counted as `suspected_missed`.
+Over I2C the device runner spreads polls over each period; over the UART the poller says when
+(uartpoll.py). A full read is one burst of ACC ... GRV, TEMP and CALIB_STAT (46 bytes from
+0x08); a read whose data bytes equal the previous read's found no new sample (n = 0). Which
+sample a read found follows from the read brackets, on the chip's sample grid (grid.py); the
+driver counts the samples it delivers from that numbering (count.py), so every gap the grid
+followed is counted exactly. A new sample whose read straddled a grid point is held until the
+next read tells which of the two it was.
 
 Calibration: CALIB_STAT is in every burst. The first time the chip reports itself fully
 calibrated, the driver switches to CONFIG mode, reads the 22-byte profile, switches back and
@@ -32,9 +32,10 @@ import numpy as np
 
 from imud.buses.registers import RegisterDevice
 from imud.channels import Channel
-from imud.chips.api import ChipCounter, DriverCounters, FifoRead, RawBatch, RawChannel
+from imud.chips.api import DriverCounters, FifoRead, RawBatch, RawChannel
 from imud.chips.bno055 import registers as R
 from imud.chips.bno055.config import MODES, Bno055Config, parse_axis_remap
+from imud.chips.bno055.count import SampleCount
 from imud.chips.bno055.grid import SampleGrid
 from imud.chips.bno055.offsets import Offsets, OffsetsError, load_offsets, write_atomic
 from imud.chips.bno055.uart import Bno055Uart
@@ -58,7 +59,6 @@ _WITH_MAG = frozenset({int(R.OprMode.NDOF), int(R.OprMode.NDOF_FMC_OFF), int(R.O
 _CALIB_ALL = int(R.CALIB_FULL)
 _CALIB_NO_MAG = R.CALIB_SYS.mask | R.CALIB_GYR.mask | R.CALIB_ACC.mask
 _DATA_BYTES = 45  # ACC ... GRV and TEMP: the bytes that change with each new sample
-COUNTER_MODULO = 1 << 62  # the driver's own count of samples: it never wraps
 QUAT_NORM_RANGE = (0.9, 1.1)  # a valid fusion quaternion has |q| = 1 within a few LSB
 
 
@@ -170,18 +170,14 @@ class Bno055Driver:
         self._prev: bytes | None = None  # the sample delivered last
         self._last_prefix = b""  # the previous read's first PROBE_LEN bytes (UART)
         self._last_body = b""  # the previous read's data bytes (I2C)
-        self._ref: tuple[int, int, int] | None = None  # (grid epoch, index, ticks) of the last
-        # sample delivered whose index was pinned
+        self.count = SampleCount(self.grid)
         self._held: Held | None = None  # a new sample whose index the next read pins
-        self._pub_mid: float | None = None  # and the middle of its host-time bounds
-        self._ticks = 0  # samples counted up to it: the batches' counter
         self._force_resync = False
         self._last_new_ns = self.clock.now_ns()
         self.calib: dict[str, int] | None = None
         self.calib_stat = 0
         self.repeated_reads = 0
         self.empty_reads = 0
-        self.suspected_missed = 0
         self.skipped_polls = 0
         self.invalid_quaternions = 0
         self._save_phase = 0  # 1: going to CONFIG, 2: back to the operating mode
@@ -390,55 +386,11 @@ class Bno055Driver:
         else:
             self._no_news(empty, t1)
         m = self.grid.newest()
-        if m is not None and self._ref == (self.grid.epoch, m, self._ticks):
+        if m is not None and self.count.newest_delivered(self.grid.epoch, m):
             return RawBatch(0, {}, FifoRead(tb, ta))  # the newest delivered is still the newest
         # the chip has a sample not yet delivered: this read does not bound the newest
         # delivered one's successor, so it says nothing of the clock's phase (`fifo_full`)
         return RawBatch(0, {}, FifoRead(tb, ta, fifo_full=True))
-
-    def _count(self, tb: int, ta: int, forced: bool, epoch: int, seen: tuple[int, int]) -> FifoRead:
-        """The stamping of a new sample whose grid index (in grid epoch `epoch`) is one of
-        `seen`, with the samples counted up to it as a counter of whole ticks a sample (the
-        pipeline counts gaps by it exactly). Exact when the index is pinned and the grid has
-        followed it on one numbering from the last sample whose index was (grid.py). Otherwise
-        the count since the sample delivered last is estimated from the grid's bounds at its
-        period, within what the grid's numbering allows, and counted as `suspected_missed`; a
-        later pinned sample counts from the last exact one again, so a misjudged gap does not
-        carry over."""
-        g = self.grid
-        period = (g.p_lo + g.p_hi) / 2
-        a, b = seen
-        current = epoch == g.epoch and g.lo is not None
-        k = a
-        if current:
-            # of the indices allowed, the newest whose window's middle the bracket's middle has
-            # passed: the likeliest (each has the read's bracket overlapping its window)
-            while k < b and sum(g.bounds(k + 1)) / 2 <= (tb + ta) / 2:
-                k += 1
-            mid = sum(g.bounds(k)) / 2
-            # the grid's bounds on this sample and the next are the reads'
-            tb, ta = max(tb, int(g.bounds(a + 1)[0])), min(ta, int(g.bounds(b)[1]))
-        else:
-            mid = (tb + ta - period) / 2  # the newest at the latch: after tb - P, by ta
-        last = self._ticks
-        ref = self._ref
-        if ref is not None and current and ref[0] == epoch:
-            lo_t, hi_t = ref[2] + a - ref[1], ref[2] + b - ref[1]
-            ticks = ref[2] + k - ref[1]
-        else:
-            lo_t, hi_t = last + 1, None
-            ticks = last + (1 if self._pub_mid is None else round((mid - self._pub_mid) / period))
-        exact = hi_t == lo_t or self._pub_mid is None
-        if ticks <= last:  # a gap misjudged before: it cannot be taken back
-            ticks, exact = last + 1, False
-        if not exact:
-            self.suspected_missed += 1
-        if current and a == b:
-            self._ref = (epoch, a, ticks)
-        self._pub_mid = mid
-        step, self._ticks = ticks - last, ticks
-        counter = ChipCounter(np.array([ticks], dtype=np.int64), COUNTER_MODULO)
-        return FifoRead(tb, ta, resync=forced or step != 1, counter=counter)
 
     def _no_news(self, empty: bool, t1: int) -> None:
         if empty and self._prev is not None:
@@ -492,7 +444,7 @@ class Bno055Driver:
     def _deliver(self, s: Held, seen: tuple[int, int]) -> RawBatch:
         """A new sample out, its grid index one of `seen` (in its epoch)."""
         forced, self._force_resync = self._force_resync, False
-        timing = self._count(s.tb, s.ta, forced, s.epoch, seen)
+        timing = self.count.next(s.tb, s.ta, forced, s.epoch, seen)
         self._prev = s.body
         batch = self._decode(s.body, timing)
         if (
@@ -568,7 +520,7 @@ class Bno055Driver:
             "fully_calibrated": None if c is None else self.calib_stat & m == m,
             "repeated_reads": self.repeated_reads,
             "empty_reads": self.empty_reads,
-            "suspected_missed": self.suspected_missed,
+            "suspected_missed": self.count.suspected,
             "skipped_polls": self.skipped_polls,
             "invalid_quaternions": self.invalid_quaternions,
             "offsets_file": str(self.offsets_path),

@@ -30,11 +30,12 @@ from imud.chips.bno055.grid import SampleGrid
 
 PROBE_LEN = 18  # ACC, MAG, GYR: 0x08-0x19
 ACQUIRE_PROBES = 8  # probes in a row while the phase or the period is not known yet
-MAX_PROBES = 8  # tightening in a row; twice as many, and a full read goes out regardless
+MAX_AIMED = 8  # aimed reads in a row before placing is tried with a wider margin; twice as
+# many, and reads are placed however wide the window
 LOCKED_PERIOD_NS = 100_000  # the period's bounds this narrow: reads may follow probes
 MARGIN_NS = 1_000_000  # room left on either side of a placed full read's typical bracket
 TIGHTEN_NS = 1_500_000  # how much narrower than needed probing leaves the window
-FLOOR_NS = 300_000  # probes narrow a window to about their bracket (and the jitter allowed)
+FLOOR_NS = 300_000  # aimed reads narrow a window to about a bracket (and the jitter allowed)
 EARLY_NS = 300_000  # a placed full read's request goes in this long after a sample surely is
 LATE_MARGIN_NS = 500_000  # a full read the link is late for still needs this much room
 TIMING_READS = 32  # recent full reads the request and bracket times are taken from
@@ -53,6 +54,7 @@ class UartPoller:
         }
         self.probes = 0
         self.streak = 0  # probes since the last full read
+        self.aimed = 0  # full reads aimed into a window since the last placed one
         self._tightening = False
 
     def note(self, t0: int, tb: int, ta: int, probe: bool) -> None:
@@ -64,32 +66,32 @@ class UartPoller:
         bracket.append(ta - tb)
 
     def probe_now(self, held: bool = False) -> bool:
-        """Probe instead of reading it all: the newest sample's index is not pinned (no phase
-        yet, or a read that straddled a sample's window), or the next sample's window leaves
-        too little room after it for a full read's bracket with MARGIN_NS on either side. Once
-        probing, on until the window is TIGHTEN_NS narrower than that (or as narrow as a
-        bracket allows), so a few probes buy many placed reads."""
+        """Probe instead of reading it all: only while the newest sample's index is not pinned
+        (no phase yet, or it was lost) or the period is still too rough for a window to hold
+        over a few reads. Then reads must come faster than a full one can to repeat at all."""
         g = self.grid
-        m = g.newest()
-        timing = self._timing(probe=False)
-        if held and g.lo is not None and timing is not None:
+        if held and g.lo is not None and self._timing(probe=False) is not None:
             return False  # a straddled sample is held: a placed full read tells its index
-        if m is None or g.p_hi - g.p_lo > LOCKED_PERIOD_NS:
-            # (the period still too rough for a window to hold over a few reads); a full read
-            # every ACQUIRE_PROBES all the same, so data flows even over a link too damaged or
-            # too late for the phase ever to pin
+        if g.newest() is None or g.p_hi - g.p_lo > LOCKED_PERIOD_NS:
+            # a full read every ACQUIRE_PROBES all the same, so data flows even over a link too
+            # damaged or too late for the phase ever to pin
             return self.streak < ACQUIRE_PROBES
-        if timing is None:
-            return False  # a full read first: its timing is what probes aim with
-        bracket = timing[1]
+        return False
+
+    def _tighten(self, m: int, bracket: float) -> bool:
+        """The next sample's window leaves too little room after it for a full read's bracket
+        with MARGIN_NS on either side: aim full reads into it, each finding the sample or not,
+        until it is TIGHTEN_NS narrower than that (or as narrow as a bracket allows), so a few
+        aimed reads buy many placed ones. An aimed read that finds the sample delivers it; one
+        that does not is the price."""
+        g = self.grid
         lo, hi = g.bounds(m + 1)
         room = g.p_lo - bracket - 2 * MARGIN_NS  # the widest window a full read can be placed by
-        probed = self._timing(probe=True)
-        floor = (probed[1] if probed else bracket) + 2 * g.jitter + FLOOR_NS
+        floor = bracket + 2 * g.jitter + FLOOR_NS
         limit = max(room - TIGHTEN_NS, floor) if self._tightening else room
-        if self._tightening and self.streak >= MAX_PROBES:
-            limit = max(limit, room)  # probes stopped paying: read as soon as a read fits
-        self._tightening = hi - lo > limit and self.streak < 2 * MAX_PROBES
+        if self._tightening and self.aimed >= MAX_AIMED:
+            limit = max(limit, room)  # aiming stopped paying: place reads as soon as one fits
+        self._tightening = hi - lo > limit and self.aimed < 2 * MAX_AIMED
         return self._tightening
 
     def _timing(self, probe: bool) -> tuple[float, float] | None:
@@ -120,16 +122,18 @@ class UartPoller:
         if g.lo is None or timing is None:
             return now
         lead, bracket = timing
+        m = g.newest()
         if held and not probe:
             first = g.seen[1]
+        elif m is None:
+            return now
+        elif probe or self._tighten(m, bracket):
+            self.aimed += not probe
+            lo, hi = g.bounds(m + 1)
+            return max(now, int((lo + hi - bracket) / 2 - lead))
         else:
-            m = g.newest()
-            if m is None:
-                return now
-            if probe:
-                lo, hi = g.bounds(m + 1)
-                return max(now, int((lo + hi - bracket) / 2 - lead))
             first = m + 1
+        self.aimed = 0
         for k in (first, first + 1):
             after_k, before_next = g.bounds(k)[1], g.bounds(k + 1)[0]
             start = max(now, int(after_k + EARLY_NS - lead))
