@@ -205,3 +205,46 @@ def test_lengths_beyond_the_protocol_are_refused_before_sending() -> None:
     with pytest.raises(ValueError, match="1 to 128"):
         uart.read(0x08, 129)
     assert port.requests == []
+
+
+def test_a_first_chunk_sent_ahead_leaves_only_the_last_two_bytes_to_the_read() -> None:
+    """`prepare_read` sends `AA 01` at once; a read 5 ms later sends `08 2E` at once (the 2 ms
+    pause is over), so the chip's snapshot follows the read's start by two characters."""
+    uart, port = make([bytes([0xBB, 46]) + bytes(46)])
+    uart.prepare_read()
+    t_ahead = port.clock.now_ns()
+    port.clock.advance(5_000_000)
+    t_read = port.clock.now_ns()
+    uart.read(0x08, 46)
+    assert port.writes == [(t_ahead, b"\xaa\x01"), (t_read, b"\x08\x2e")]
+    assert port.requests == [bytes([0xAA, 0x01, 0x08, 0x2E])]
+    assert uart.latch[0] == t_read + int(2 * CHAR_NS)
+
+
+def test_a_read_soon_after_its_first_chunk_still_waits_the_pause() -> None:
+    uart, port = make([bytes([0xBB, 1, 0x0C])])
+    uart.prepare_read()
+    t_ahead = port.clock.now_ns()
+    assert uart.read_u8(0x3D) == 0x0C
+    assert port.writes[1][0] - t_ahead >= 2_000_000
+
+
+def test_a_first_chunk_not_completed_in_time_is_waited_out_before_a_new_request() -> None:
+    """A read 25 ms after its first chunk (the chip drops a request whose bytes are 30 ms
+    apart), or a write: the half request is left to time out at the chip (40 ms from it), its
+    status answer flushed, and the whole request sent afresh."""
+    for late_ns, call in ((25_000_000, "read"), (0, "write")):
+        uart, port = make([bytes([0xBB, 1, 0x0C]), b"\xee\x01"])
+        uart.prepare_read()
+        t_ahead = port.clock.now_ns()
+        port.clock.advance(late_ns)
+        port.inbox += b"\xee\x0a"  # RECEIVE_CHARACTER_TIMEOUT for the half request
+        flushes = port.flushes
+        if call == "read":
+            assert uart.read_u8(0x3D) == 0x0C
+        else:
+            uart.write_u8(0x3D, 0x0C)
+        t_fresh, chunk = port.writes[1]
+        assert chunk == bytes([0xAA, 0x01 if call == "read" else 0x00])
+        assert t_fresh - t_ahead >= 40_000_000, call
+        assert port.flushes > flushes, call

@@ -343,9 +343,11 @@ class Bno055Driver:
         if self._save_phase:
             return self._save_step()
         t0 = self.clock.now_ns()
-        if self.poller is not None:
+        if self.poller is not None and self.uart is not None:
             batch = self._read_uart(t0)
             self.next_poll_ns = self.poller.next_read(self.clock.now_ns(), self._held is not None)
+            if not self._save_phase:
+                self.uart.prepare_read()  # the next read's pause between chunks starts now
             return batch
         due = self.grid.next_due()
         if due is not None and t0 < due:

@@ -9,8 +9,11 @@ the request itself is wrong (no such register, read-only, length) is raised at o
 status code and what it means.
 
 A read also records when the chip took its snapshot (`latch`): not before the request's last
-byte could have reached it, and no later than the answer's full transmission time before the
-answer was complete. The driver gives these brackets to the sample-clock fit.
+byte could have reached it, and no later than the answer's head (or the whole answer) could
+have taken on the wire before it arrived. The driver gives these brackets to the sample grid.
+`prepare_read` sends the next read's first chunk ahead (the chip waits up to 30 ms for the
+rest), so the read itself is one chunk and its snapshot follows its start by two characters,
+not 2 ms: what lets the driver place reads between the chip's samples.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ RESPONSE_TIMEOUT_NS = 100_000_000  # Linux: 100 ms
 TRIES = 5  # Linux: retry_max = 5
 BUSY_RETRY_NS = 2_000_000  # after 0x07: the chip clears it itself once its fusion step is done
 QUIET_NS = 40_000_000  # > 30 ms: the chip's receiver drops a half-received request
+PREPARED_MAX_NS = 20_000_000  # a read's first chunk sent ahead is completed within this
 
 MEANING: dict[int, str] = {
     UartStatus.WRITE_SUCCESS: "write done",
@@ -118,6 +122,28 @@ class Bno055Uart:
         self.timeout_ms = response_timeout_ns / 1e6
         self.stats = UartStats()
         self.latch: tuple[int, int] = (0, 0)  # host-time brackets of the last read's snapshot
+        self._prepared: int | None = None  # when a read request's first chunk went out ahead
+
+    def prepare_read(self) -> None:
+        """Send the next read request's first chunk (start byte and read op) now: the next read
+        then sends only its register and length, so the 2 ms pause between chunks is over
+        before it starts and the chip's snapshot follows the read's start by a few character
+        times instead (what lets a poller place it). Within PREPARED_MAX_NS, or it is dropped."""
+        self._drop_prepared()
+        self.port.reset_input_buffer()
+        self.port.write(bytes([_START, _READ]))
+        self._prepared = self.clock.now_ns()
+
+    def _drop_prepared(self) -> None:
+        """A first chunk sent ahead and not completed in time (or a write coming instead): wait
+        until the chip's receiver has dropped it, and drop its status answer."""
+        if self._prepared is None:
+            return
+        wait = self._prepared + QUIET_NS - self.clock.now_ns()
+        self._prepared = None
+        if wait > 0:
+            self.clock.sleep_ns(wait)
+        self.port.reset_input_buffer()
 
     # --- RegisterDevice ---------------------------------------------------------------------
     def read(self, register: int, length: int) -> bytes:
@@ -139,20 +165,26 @@ class Bno055Uart:
 
     def write_no_answer(self, register: int, value: int) -> None:
         """A write the chip does not answer: setting RST_SYS resets it before it can."""
+        self._drop_prepared()
         self.port.reset_input_buffer()
         self._send(bytes([_START, _WRITE, register, 1, value & 0xFF]))
 
     def flush(self) -> None:
         """Drop whatever the chip sent that nobody asked for (boot noise, a late answer)."""
+        self._drop_prepared()
         self.port.reset_input_buffer()
 
     # --- protocol ---------------------------------------------------------------------------
-    def _send(self, frame: bytes) -> int:
-        """Send in 2-byte chunks; returns the earliest instant the chip can have the whole
-        request (the last chunk's start plus its bytes' time on the wire)."""
+    def _send(self, frame: bytes, ahead: int | None = None) -> int:
+        """Send in 2-byte chunks (the first already sent at `ahead`, if given); returns the
+        earliest instant the chip can have the whole request (the last chunk's start plus its
+        bytes' time on the wire)."""
         t_last = 0
-        for i in range(0, len(frame), CHUNK_BYTES):
-            if i:
+        first = 0 if ahead is None else CHUNK_BYTES
+        for i in range(first, len(frame), CHUNK_BYTES):
+            if i == first and ahead is not None:  # the pause after the chunk sent ahead
+                self.clock.sleep_ns(max(0, ahead + CHUNK_GAP_NS - self.clock.now_ns()))
+            elif i:
                 self.clock.sleep_ns(CHUNK_GAP_NS)
             chunk = frame[i : i + CHUNK_BYTES]
             t_last = self.clock.now_ns() + int(len(chunk) * self.char_ns)
@@ -163,12 +195,23 @@ class Bno055Uart:
         what = f"{'read' if op == _READ else 'write'} of register 0x{register:02x} ({length} B)"
         last = "no attempt"
         last_status: int | None = None
+        prepared = self._prepared
+        if prepared is not None and (
+            op != _READ or self.clock.now_ns() - prepared > PREPARED_MAX_NS
+        ):
+            self._drop_prepared()
+            prepared = None
         for attempt in range(self.tries):
             if attempt:
                 self.stats.retries += 1
             self.stats.requests += 1
-            self.port.reset_input_buffer()  # stale input would be taken for the answer
-            t_sent = self._send(bytes([_START, op, register, length]) + data)
+            frame = bytes([_START, op, register, length]) + data
+            if prepared is not None and not attempt:  # its first chunk is out: nothing stale
+                self._prepared = None
+                t_sent = self._send(frame, ahead=prepared)
+            else:
+                self.port.reset_input_buffer()  # stale input would be taken for the answer
+                t_sent = self._send(frame)
             head = self.port.read(2)
             t_head = self.clock.now_ns()
             if len(head) < 2:

@@ -126,7 +126,9 @@ class UartPoller:
         if held and not probe:
             first = g.seen[1]
         elif m is None:
-            return now
+            # a phase, but the newest sample one of a range: a read between the range's last
+            # sample and the next latches that one for certain, and pins the index again
+            first = g.seen[1]
         elif probe or self._tighten(m, bracket):
             self.aimed += not probe
             lo, hi = g.bounds(m + 1)
