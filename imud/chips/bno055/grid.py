@@ -7,14 +7,13 @@ whether m moved on. This keeps:
 - bounds on one grid point (the reference, the newest sample pinned down), on the period (from
   the reference and an anchor grid point many indices earlier: they shrink as 1/n), and a lower
   bound on the grid point after the reference (from reads that found nothing new);
-- the range of indices the newest seen sample can have. A new read whose index range is one
-  index past a single previous index is certainly the next sample; anything else (a skip, or a
-  read that straddles a grid point it cannot place) is reported, and the caller says `resync`
-  so the pipeline's fitted clock decides.
-Ambiguity does not cost the grid: its phase and period carry over, so reads are ambiguous only
-when a read lands within the bracket width of a grid point two steps on from the previous one,
-which takes a poll almost a whole period late. `jitter_ns` allows for output instants that are
-not exactly periodic.
+- the range of indices the newest seen sample can have (`newest`: the index, when it is one),
+  numbered within an `epoch` that ends when the phase is lost. The driver counts the samples it
+  delivers from that numbering (count.py), exactly while both ends of a gap are pinned in one
+  epoch.
+A read that straddles a grid point leaves a range, not a lost phase: its phase and period carry
+over, and the next read that clears the windows pins the index again. `jitter_ns` allows for
+output instants that are not exactly periodic.
 """
 
 from __future__ import annotations
@@ -50,7 +49,6 @@ class SampleGrid:
         self.seen = (0, 0)  # index range of the newest sample seen
         self.anchor = (0, 0.0, 0.0)
         self.last_tb: float = -math.inf
-        self.lost = False
 
     # --- bounds of the ideal grid point k ---------------------------------------------------
     def _lo(self, k: int) -> float:
@@ -82,42 +80,40 @@ class SampleGrid:
         return self._lo(self.seen[0] + 1) - self.jitter
 
     # --- reads ------------------------------------------------------------------------------
-    def observe(self, tb: int, ta: int, new: bool) -> bool:
-        """A read bracketed by [tb, ta] found new data (or not). True for a new read whose count
-        of samples since the previous new one is not certainly 1."""
+    def observe(self, tb: int, ta: int, new: bool) -> None:
+        """A read bracketed by [tb, ta] found new data (or not)."""
         j = self.jitter
         if self.lo is None:
-            lost = False
             if new:  # the newest sample came after the last read and no later than this one
                 self.lo, self.hi = max(tb - self.p_hi, self.last_tb) - j, ta + j
                 self.r, self.seen, self.next_lo = 0, (0, 0), tb - j
                 self.anchor = (0, self.lo, self.hi)
-                lost, self.lost = self.lost, False
             self.last_tb = float(tb)
-            return lost
+            return
         s_lo, s_hi = self.seen
         # newest index m at this latch: g_m <= ta (k_b is the highest such) and g_(m+1) > tb
         k_b = s_lo - 1
         while self._lo(k_b + 1) - j <= ta:
             k_b += 1
             if k_b - s_lo > MAX_STEPS:
-                return self._lose_phase(new, tb, ta)
+                self._lose_phase(new, tb, ta)
+                return
         k_a = s_lo - 1
         while self._hi(k_a + 1) + j <= tb:
             k_a += 1
         lo_m = max(k_a, s_lo + 1 if new else s_lo)
         hi_m = k_b if new else min(k_b, s_hi)
         if lo_m > hi_m:
-            return self._lose_phase(new, tb, ta, broke=True)  # the bounds did not hold
+            self._lose_phase(new, tb, ta, broke=True)  # the bounds did not hold
+            return
         if hi_m > lo_m and self._hi(hi_m) - self._lo(hi_m) > self.p_lo:
-            return self._lose_phase(new, tb, ta)  # grid points no longer told apart
-        ambiguous = new and not (s_lo == s_hi and lo_m == hi_m == s_lo + 1)
+            self._lose_phase(new, tb, ta)  # grid points no longer told apart
+            return
         prev_hi = s_hi
         self.seen = (lo_m, hi_m)
         if lo_m == hi_m:
             self._pin(lo_m, tb, ta, new and prev_hi < lo_m)
         self.last_tb = float(tb)
-        return ambiguous
 
     def _pin(self, m: int, tb: int, ta: int, after_last: bool) -> None:
         """The newest sample is known to be m: tighten the grid with this read."""
@@ -142,7 +138,7 @@ class SampleGrid:
         if p_lo <= self.p_hi and p_hi >= self.p_lo:
             self.p_lo, self.p_hi = max(self.p_lo, p_lo), min(self.p_hi, p_hi)
 
-    def _lose_phase(self, new: bool, tb: int, ta: int, broke: bool = False) -> bool:
+    def _lose_phase(self, new: bool, tb: int, ta: int, broke: bool = False) -> None:
         """Start the phase over from this read (numbering from it). If the bounds broke, a read
         was taken for a repeat that was not one (two samples alike to the last byte: a chip at
         rest can do that) more likely than the chip's period moved: the period's bounds widen
@@ -156,6 +152,4 @@ class SampleGrid:
         self.new_phase()
         self.last_tb = last_tb
         self.phase_losses += 1
-        self.lost = True  # the next new read cannot be counted from here
         self.observe(tb, ta, new)
-        return new

@@ -10,15 +10,17 @@ so, stamps 2-3 ms off).
 
 So the phase is found with probes: reads of only the first PROBE_LEN bytes (accelerometer,
 magnetometer, gyroscope: they change with every sample), about 7 ms apart, until the grid has
-pinned a sample and narrowed its period to LOCKED_PERIOD_NS (a second or two after start).
-Probes are aimed at the middle of the next sample's window, so whether they find it or not,
-the window halves (down to about a probe's bracket). Then full reads are placed: each starts so
-its request goes in just after the next sample surely exists and its bracket ends before the
-one after can: its index is certain, and a sample the link had no time for is counted exactly.
-When the window has grown too wide for that (the period's residual error adds up), a few aimed
-probes narrow it again. A read the scheduler made late straddles a window now and then: the
-driver holds that sample back and the next full read, placed after the last sample it can be,
-tells which one it was.
+pinned a sample and narrowed its period to LOCKED_PERIOD_NS (a second or two after start; a
+full read every ACQUIRE_PROBES meanwhile). Probes are aimed at the middle of the next sample's
+window, so whether they find it or not, the window halves (down to about a bracket). Then full
+reads are placed: each starts so its request goes in just after the next sample surely exists
+and its bracket ends before the one after can: its index is certain, and a sample the link had
+no time for is counted exactly. (The driver sends each request's first chunk ahead, so a read is
+only its last two bytes late: Bno055Uart.prepare_read.) When the window has grown too wide for
+that (the period's residual error adds up), full reads are aimed into it instead, each finding
+the sample or not. A read the scheduler made late straddles a window now and then: the driver
+holds that sample back and the next read, placed after the last sample it can be, tells which
+one it was.
 """
 
 from __future__ import annotations
