@@ -78,7 +78,7 @@ def test_mpu6050_simulated_gyro_is_delayed_by_the_dlpf_table(
                      clock)  # fmt: skip
     sim.motion = SineRate()  # type: ignore[assignment]
     out: list[tuple[np.ndarray, np.ndarray]] = []
-    sim._emit = lambda t, fm, wm, temp: out.append((t, wm))  # type: ignore[method-assign]
+    sim._reveal = lambda m, i, j: out.append((m.t_ns[i:j], m.gyro[i:j]))  # type: ignore[method-assign]
     sim.write(R.PWR_MGMT_1, bytes([0x01]))
     sim.write(R.SMPLRT_DIV, bytes([div]))
     sim.write(R.CONFIG, bytes([dlpf_cfg]))
@@ -132,7 +132,7 @@ def test_stim300_simulated_gyro_is_delayed_by_the_filter_table(
                      clock, odr_hz=500, filter_hz=filter_hz)  # fmt: skip
     sim.motion = SineRate()  # type: ignore[assignment]
     out: list[tuple[np.ndarray, np.ndarray]] = []
-    sim._emit = lambda t, fm, wm, temp: out.append((t, wm))  # type: ignore[method-assign]
+    sim._reveal = lambda m, i, j: out.append((m.t_ns[i:j], m.gyro[i:j]))  # type: ignore[method-assign]
     clock.advance(2_000_000_000)
     sim.advance()
     t_ns = np.concatenate([o[0] for o in out])

@@ -41,7 +41,7 @@ def mpu6050_still(dlpf_cfg: int, div: int, seconds: float) -> tuple[np.ndarray, 
     clock = VirtualClock()
     sim = Mpu6050Sim(SimSettings(seed=21, errors={"ideal": True}), clock)
     out: list[tuple[np.ndarray, np.ndarray]] = []
-    sim._emit = lambda t, fm, wm, temp: out.append((fm, wm))  # type: ignore[method-assign]
+    sim._reveal = lambda m, i, j: out.append((m.accel[i:j], m.gyro[i:j]))  # type: ignore[method-assign]
     sim.write(R.PWR_MGMT_1, bytes([0x01]))
     sim.write(R.SMPLRT_DIV, bytes([div]))
     sim.write(R.CONFIG, bytes([dlpf_cfg]))
@@ -89,7 +89,7 @@ def allan_n(x: np.ndarray, rate_hz: float) -> float:
 def capture(sim: Any, seconds: float, clock: VirtualClock) -> tuple[np.ndarray, np.ndarray]:
     """Accel and gyro as a sampled chip emits them (before quantisation) for `seconds`."""
     out: list[tuple[np.ndarray, np.ndarray]] = []
-    sim._emit = lambda t, fm, wm, temp: out.append((fm, wm))
+    sim._reveal = lambda m, i, j: out.append((m.accel[i:j], m.gyro[i:j]))
     clock.advance(int(seconds * 1e9))
     sim.advance()
     return np.concatenate([o[0] for o in out]), np.concatenate([o[1] for o in out])
@@ -151,8 +151,8 @@ def test_bmi088_gyro_rms_is_boschs_band_and_allan_n_the_density() -> None:
     clock.advance(6_000_000)
     acc.write(AR.ACC_CONF, bytes([0xAC]))  # normal, 1600 Hz
     got: dict[str, list[np.ndarray]] = {"a": [], "g": []}
-    acc._emit = lambda t, fm, wm, temp: got["a"].append(fm)  # type: ignore[method-assign]
-    sim.gyro._emit = lambda t, fm, wm, temp: got["g"].append(wm)  # type: ignore[method-assign]
+    acc._reveal = lambda m, i, j: got["a"].append(m.accel[i:j])  # type: ignore[method-assign]
+    sim.gyro._reveal = lambda m, i, j: got["g"].append(m.gyro[i:j])  # type: ignore[method-assign]
     clock.advance(100_000_000_000)
     acc.advance()
     sim.gyro.advance()

@@ -308,6 +308,6 @@ class FilteredChip(SampledChip):
                 f, w = self.motion.sample((t_true - self.t_origin_ns) / 1e9)
         return Measured(t_ns, fm, wm, temp, t_true, f, w)
 
-    def _reveal(self, m: Measured) -> None:
-        super()._reveal(m)
-        self._last_true_ns = float(m.truth_t_ns[-1])
+    def _reveal(self, m: Measured, i: int, j: int) -> None:
+        super()._reveal(m, i, j)
+        self._last_true_ns = float(m.truth_t_ns[j - 1])

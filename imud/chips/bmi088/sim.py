@@ -27,6 +27,7 @@ from imud.chips.bmi088 import registers as R
 from imud.chips.bmi088.registers import AccelRegister as A
 from imud.chips.bmi088.registers import GyroRegister as G
 from imud.clock import Clock
+from imud.sim.chip import Encoded, Measured
 from imud.sim.filters import FilteredChip, SensorFilter, enbw_fir
 from imud.sim.physics import ChipFigures, ErrorModel, quantise
 from imud.sim.settings import SimSettings
@@ -138,29 +139,45 @@ class Bmi088AccelSim(FilteredChip):
         wm: npt.NDArray[np.float64],
         temp: npt.NDArray[np.float64],
     ) -> None:
+        self._emit_rows(self._encode_rows(t_ns, fm, temp), 0, t_ns.shape[0])
+
+    def _encode(self, m: Measured) -> Encoded:
+        return self._encode_rows(m.t_ns, m.accel, m.temp_c)
+
+    def _encode_rows(
+        self,
+        t_ns: npt.NDArray[np.int64],
+        fm: npt.NDArray[np.float64],
+        temp: npt.NDArray[np.float64],
+    ) -> Encoded:
+        """Counts and the FIFO's 7-byte accel frames (header, then X, Y, Z little-endian)."""
         # full scale doubles from 3 g with each ACC_RANGE step; +-full scale spans 2^16 counts
         full_scale_g = 1.5 * 2 ** ((self.regs[A.ACC_RANGE] & 3) + 1)
-        lsb = 2 * full_scale_g * GRAVITY / 65536
-        acc = quantise(fm, lsb)
-        self.latest = acc[-1]
-        self.drdy = True
-        if t_ns[-1] >= self.temp_next_ns:
-            self.temp_reg = temperature_bytes(float(temp[-1]))
-            self.temp_next_ns += TEMP_UPDATE_NS * max(
-                1, math.ceil((int(t_ns[-1]) - self.temp_next_ns) / TEMP_UPDATE_NS)
-            )
-        if not self.regs[A.FIFO_CONFIG_1] & _ACC_EN:
-            return
+        acc = quantise(fm, 2 * full_scale_g * GRAVITY / 65536)
         n = acc.shape[0]
         frames = np.empty((n, 7), dtype=np.uint8)
         frames[:, 0] = _HDR_ACCEL
         frames[:, 1:] = acc.astype("<i2").view(np.uint8).reshape(n, 6)
+        return {"acc": acc, "frames": frames, "t": t_ns, "temp": temp}
+
+    def _emit_rows(self, enc: Encoded, i: int, j: int) -> None:
+        self.latest = enc["acc"][j - 1]
+        self.drdy = True
+        t_last = int(enc["t"][j - 1])
+        if t_last >= self.temp_next_ns:
+            self.temp_reg = temperature_bytes(float(enc["temp"][j - 1]))
+            self.temp_next_ns += TEMP_UPDATE_NS * max(
+                1, math.ceil((t_last - self.temp_next_ns) / TEMP_UPDATE_NS)
+            )
+        if not self.regs[A.FIFO_CONFIG_1] & _ACC_EN:
+            return
+        n = j - i
         room = ACC_FRAMES_MAX - len(self.fifo) // 7
         if self.regs[A.FIFO_CONFIG_0] & _STOP_WHEN_FULL:  # stop when full
-            self.fifo += frames[:room].tobytes()
+            self.fifo += enc["frames"][i : i + max(0, min(n, room))].tobytes()
             self.frames_dropped += max(0, n - room)
             return
-        self.fifo += frames.tobytes()  # stream mode: the oldest frames make room
+        self.fifo += enc["frames"][i:j].tobytes()  # stream mode: the oldest frames make room
         excess = len(self.fifo) // 7 - ACC_FRAMES_MAX
         if excess > 0:
             del self.fifo[: 7 * excess]
@@ -288,13 +305,24 @@ class Bmi088GyroSim(FilteredChip):
         wm: npt.NDArray[np.float64],
         temp: npt.NDArray[np.float64],
     ) -> None:
+        self._emit_rows(self._encode_rows(wm), 0, t_ns.shape[0])
+
+    def _encode(self, m: Measured) -> Encoded:
+        return self._encode_rows(m.gyro)
+
+    def _encode_rows(self, wm: npt.NDArray[np.float64]) -> Encoded:
+        """Counts and the FIFO's 6-byte frames (X, Y, Z little-endian)."""
         full_scale_dps = 2000 / 2 ** self.regs[G.GYRO_RANGE]  # halves with each code from 0
         gyr = quantise(wm, 2 * full_scale_dps * math.pi / 180 / 65536)
-        self.latest = gyr[-1]
+        frames = gyr.astype("<i2").view(np.uint8).reshape(gyr.shape[0], R.GYRO_FRAME_BYTES)
+        return {"gyr": gyr, "frames": frames}
+
+    def _emit_rows(self, enc: Encoded, i: int, j: int) -> None:
+        self.latest = enc["gyr"][j - 1]
         mode = self.regs[G.FIFO_CONFIG_1] >> 6
         if mode == 0:
             return
-        frames = gyr.astype("<i2").tobytes()
+        frames = enc["frames"][i:j].tobytes()
         room = GYRO_FIFO_BYTES - len(self.fifo)
         if len(frames) > room:
             self.overrun = True

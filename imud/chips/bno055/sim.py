@@ -145,6 +145,7 @@ def _units(v: F64) -> F64:
 class Bno055Sim(SampledChip):
     def __init__(self, settings: SimSettings, clock: Clock, serial_baud: int | None = None) -> None:
         super().__init__(settings, clock, FIGURES)
+        self._truth: list[dict[str, Any]] = []  # made here, whole (`_produce`)
         seeds = np.random.SeedSequence([settings.seed, 0x055]).spawn(3)
         self.field = MagneticField(settings.magnetic, np.random.default_rng(seeds[0]))
         rng = np.random.default_rng(seeds[1])

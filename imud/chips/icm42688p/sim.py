@@ -19,6 +19,7 @@ from imud.chips.icm42688p.registers import Bank0 as B0
 from imud.chips.icm42688p.registers import Bank1 as B1
 from imud.chips.icm42688p.registers import Bank2 as B2
 from imud.clock import Clock
+from imud.sim.chip import Encoded, Measured
 from imud.sim.filters import FilteredChip, SensorFilter, enbw_fir
 from imud.sim.physics import ChipFigures, quantise
 from imud.sim.settings import SimSettings
@@ -144,6 +145,20 @@ class Icm42688pSim(FilteredChip):
         wm: npt.NDArray[np.float64],
         temp: npt.NDArray[np.float64],
     ) -> None:
+        self._emit_rows(self._encode_rows(t_ns, fm, wm, temp), 0, t_ns.shape[0])
+
+    def _encode(self, m: Measured) -> Encoded:
+        return self._encode_rows(m.t_ns, m.accel, m.gyro, m.temp_c)
+
+    def _encode_rows(
+        self,
+        t_ns: npt.NDArray[np.int64],
+        fm: npt.NDArray[np.float64],
+        wm: npt.NDArray[np.float64],
+        temp: npt.NDArray[np.float64],
+    ) -> Encoded:
+        """The data registers' counts (accel then gyro, 16-bit) and temperature, and the FIFO
+        packets when both sensors go to it."""
         hires = self.hires
         a_lsb, g_lsb = self._lsb(hires)
         bits = 20 if hires else 16
@@ -157,12 +172,20 @@ class Icm42688pSim(FilteredChip):
         acc[on < ACCEL_STARTUP_NS] = -(2 ** (bits - 1))
         gyr[on < GYRO_STARTUP_NS] = -(2 ** (bits - 1))
         shift = 4 if hires else 0
-        self.latest[:3], self.latest[3:] = acc[-1] >> shift, gyr[-1] >> shift
-        self.latest_temp = int(np.rint((temp[-1] - 25.0) * 132.48))
+        enc: Encoded = {"regs": np.concatenate([acc >> shift, gyr >> shift], axis=1),
+               "temp": np.rint((temp - 25.0) * 132.48).astype(np.int32)}  # fmt: skip
+        if self.regs[B0.FIFO_CONFIG1] & _BOTH == _BOTH:
+            enc["packets"] = self._packets(t_ns, acc, gyr, temp, hires)
+        return enc
+
+    def _emit_rows(self, enc: Encoded, i: int, j: int) -> None:
+        self.latest[:] = enc["regs"][j - 1]
+        self.latest_temp = int(enc["temp"][j - 1])
         self.int_status |= _DATA_RDY
         mode = self.regs[B0.FIFO_CONFIG] >> 6
-        if mode and self.regs[B0.FIFO_CONFIG1] & _BOTH == _BOTH:
-            self._push(self._packets(t_ns, acc, gyr, temp, hires), mode)
+        packets = enc.get("packets")
+        if mode and packets is not None:
+            self._push(packets[i:j], mode)
 
     def _ticks(self, t_ns: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
         """The FIFO timestamp: a free-running counter on the chip's own (imperfect) clock."""

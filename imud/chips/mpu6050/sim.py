@@ -20,6 +20,7 @@ from imud.chips.mpu6050.registers import (
 )
 from imud.chips.mpu6050.registers import Register as R
 from imud.clock import Clock
+from imud.sim.chip import Encoded, Measured
 from imud.sim.filters import FilteredChip, SensorFilter, design
 from imud.sim.physics import ChipFigures, quantise
 from imud.sim.settings import SimSettings
@@ -145,16 +146,44 @@ class Mpu6050Sim(FilteredChip):
 
     # --- sampling -------------------------------------------------------------------------
     def _emit(self, t_ns: np.ndarray, fm: np.ndarray, wm: np.ndarray, temp: np.ndarray) -> None:
+        self._emit_rows(self._encode_rows(t_ns, fm, wm, temp), 0, t_ns.shape[0])
+
+    def _encode(self, m: Measured) -> Encoded:
+        return self._encode_rows(m.t_ns, m.accel, m.gyro, m.temp_c)
+
+    def _encode_rows(
+        self, t_ns: np.ndarray, fm: np.ndarray, wm: np.ndarray, temp: np.ndarray
+    ) -> Encoded:
+        """Counts for the data registers and the FIFO's bytes per sample, as FIFO_EN selects
+        them (accel, temperature, then each gyro axis enabled: big-endian words)."""
         if self.internal_hz == 8000.0:
             fm = self._hold_accel_1khz(t_ns, fm)
         acc = quantise(fm, self.accel_lsb)
         gyr = quantise(wm, self.gyro_lsb)
-        self.latest_accel, self.latest_gyro = acc[-1], gyr[-1]
-        self.latest_temp_raw = int(np.rint((temp[-1] - 36.53) * 340.0))
+        temp_raw = np.rint((temp - 36.53) * 340.0).astype(np.int32)
+        enc: Encoded = {"acc": acc, "gyr": gyr, "temp": temp_raw}
+        en = self.regs[R.FIFO_EN]
+        cols: list[np.ndarray] = []
+        if en & _EN_ACCEL:
+            cols.append(acc)
+        if en & _EN_TEMP:
+            cols.append(temp_raw[:, None])
+        for bit, axis in _EN_GYRO:
+            if en & bit:
+                cols.append(gyr[:, axis : axis + 1])
+        if cols:
+            words = np.concatenate(cols, axis=1).astype(">i2")
+            enc["fifo"] = words.view(np.uint8).reshape(words.shape[0], -1)
+        return enc
+
+    def _emit_rows(self, enc: Encoded, i: int, j: int) -> None:
+        self.latest_accel, self.latest_gyro = enc["acc"][j - 1], enc["gyr"][j - 1]
+        self.latest_temp_raw = int(enc["temp"][j - 1])
         self._data_regs = None  # rebuilt when next read
         self.int_status |= _DATA_RDY
-        if self.regs[R.USER_CTRL] & _FIFO_ON and self.regs[R.FIFO_EN]:
-            self._push_fifo(acc, gyr, temp)
+        rows = enc.get("fifo")
+        if rows is not None and self.regs[R.USER_CTRL] & _FIFO_ON:
+            self._push_fifo(rows[i:j].tobytes())
 
     def _hold_accel_1khz(self, t_ns: np.ndarray, fm: np.ndarray) -> np.ndarray:
         """With the DLPF off the gyro runs at 8 kHz but the accel at 1 kHz: hold accel values."""
@@ -170,20 +199,8 @@ class Mpu6050Sim(FilteredChip):
         self._accel_hold = (int(idx[-1]), out[-1].copy())
         return out
 
-    def _push_fifo(self, acc: np.ndarray, gyr: np.ndarray, temp: np.ndarray) -> None:
-        en = self.regs[R.FIFO_EN]
-        cols: list[np.ndarray] = []
-        if en & _EN_ACCEL:
-            cols.append(acc)
-        if en & _EN_TEMP:
-            cols.append(np.rint((temp - 36.53) * 340.0).astype(np.int32)[:, None])
-        for bit, axis in _EN_GYRO:
-            if en & bit:
-                cols.append(gyr[:, axis : axis + 1])
-        if not cols:
-            return
-        words = np.concatenate(cols, axis=1).astype(">i2")
-        self.fifo += words.tobytes()
+    def _push_fifo(self, data: bytes) -> None:
+        self.fifo += data
         excess = len(self.fifo) - FIFO_SIZE
         if excess > 0:  # the MPU6050 overwrites its oldest bytes and flags the overflow
             del self.fifo[:excess]
