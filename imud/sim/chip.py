@@ -11,8 +11,11 @@ are due before that work would make the read see a count that much older than it
 of half of it in any host-side stamp (measured: +222 us on the MPU6050 model). So a simulator that
 opts in (`stage_ns`) computes its samples ahead, in chunks, and at each access first does that
 work and only then looks at the clock and hands the FIFO the samples due by then: the latch is
-the end of the access, as on a chip. Staged samples are discarded (and computed again, under the
-new settings) by any register write and by a grid restart.
+the end of the access, as on a chip. The hand-over is work too, so the chip's counts and FIFO
+frames are prepared with the samples (`_encode`) and the clock is read again after each hand-over
+(`_latch_at_end`): left at the latch, they kept it 30-50 us before the end exactly in the reads
+that found a new sample (+22 us in the MPU6050's stamps). Staged samples are discarded (and
+computed again, under the new settings) by any register write and by a grid restart.
 
 Two start-up and power faults of `[device.sim.faults]` are kept here for every chip: `resets`,
 instants at which the chip resets itself (a brown-out; the subclass's `power_on_reset` says what
@@ -266,13 +269,18 @@ class SampledChip:
         the latch that far before the access's end for exactly the reads that found a new
         sample, and stamps late by half of it (measured: +22 us on the MPU6050 at 1 kHz, whose
         reads' bounds on a newest sample were never tighter than 63 us). So the clock is read
-        again after each hand-over, until one finds nothing more due: the FIFO then holds
-        what was due at that last clock read, and only the register read follows it."""
+        again after each hand-over (and after computing more, should the samples computed
+        ahead run out), until one finds nothing more due: the FIFO then holds what was due at
+        that last clock read, and only the register read follows it."""
         for _ in range(LATCH_ROUNDS):
-            k_due = math.floor((self.clock.now_ns() - self.grid_origin_ns) / period)
-            if k_due < self.next_k or not self._staged or self._staged[0].k > k_due:
+            now = self.clock.now_ns()
+            k_due = math.floor((now - self.grid_origin_ns) / period)
+            if k_due < self.next_k:
                 return
-            self._latch_due(k_due)
+            if k_due >= self._stage_k:  # due but not computed yet (the staged ones ran out)
+                self._stage(now, period)
+            else:
+                self._latch_due(k_due)
 
     def _latch_due(self, k_due: int) -> None:
         """Hand the chip's registers and FIFO the computed samples up to sample `k_due`."""
