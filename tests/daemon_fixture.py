@@ -8,6 +8,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -46,7 +47,7 @@ class DaemonProc:
             start_new_session=session,
         )
 
-    def cli(self, *args: str, timeout: float = 20.0) -> subprocess.CompletedProcess[str]:
+    def cli(self, *args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
         return subprocess.run(
             [sys.executable, "-m", "imud", *args],
             capture_output=True,
@@ -67,7 +68,7 @@ class DaemonProc:
             except (TimeoutError, BlockingIOError):
                 return self.messages
 
-    def wait_started(self, timeout: float = 20.0) -> dict[str, Any]:
+    def wait_started(self, timeout: float = 60.0) -> dict[str, Any]:
         """Until the daemon answers and no device is still starting."""
         end = time.monotonic() + timeout
         while time.monotonic() < end:
@@ -80,9 +81,16 @@ class DaemonProc:
             time.sleep(0.2)
         raise AssertionError(f"daemon did not start:\n{self.log.read_text()}")
 
-    def collect(self, key: str, seconds: float, depth: int = 65536) -> list[bytes]:
-        """Raw payloads a real subscriber on `key` receives for `seconds` (decoded later, so
-        decoding does not compete with the daemon under test on a small machine)."""
+    def collect(
+        self,
+        key: str,
+        seconds: float,
+        depth: int = 65536,
+        until: threading.Event | None = None,
+    ) -> list[bytes]:
+        """Raw payloads a real subscriber on `key` receives for `seconds`, or until `until` is
+        set if given (`seconds` then only bounds a broken test). Decoded later, so decoding
+        does not compete with the daemon under test on a small machine."""
         import zenoh
 
         import imud.client as ic
@@ -91,7 +99,7 @@ class DaemonProc:
         with ic.open_session(self.endpoint) as s:
             sub = s.declare_subscriber(key, zenoh.handlers.FifoChannel(depth))
             end = time.monotonic() + seconds
-            while time.monotonic() < end:
+            while time.monotonic() < end and not (until is not None and until.is_set()):
                 sample = sub.try_recv()
                 if sample is None:
                     time.sleep(0.01)

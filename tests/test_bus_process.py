@@ -51,7 +51,7 @@ def _bus_children(d: DaemonProc) -> dict[str, int]:
     return {b["bus"]: b["pid"] for b in d.status()["buses"] if b["pid"] in kids}
 
 
-def _wait(d: DaemonProc, cond: object, timeout: float = 15.0) -> dict[str, dict[str, object]]:
+def _wait(d: DaemonProc, cond: object, timeout: float = 60.0) -> dict[str, dict[str, object]]:
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         st = {x["name"]: x for x in d.status()["devices"]}
@@ -170,11 +170,18 @@ def test_a_restarted_bus_process_counts_the_gap_at_the_chips_measured_period(
     raw: list[bytes] = []
     try:
         d.wait_started()
-        t = threading.Thread(target=lambda: raw.extend(d.collect("imud/fast/imu", 7.0)))
+        done = threading.Event()  # the collection ends once the restarted stream flows
+        t = threading.Thread(
+            target=lambda: raw.extend(d.collect("imud/fast/imu", 120.0, until=done))
+        )
         t.start()
         time.sleep(3.0)  # > 1000 samples relayed: the period is measured
         os.kill(_bus_children(d)["sim:simA"], signal.SIGKILL)
-        _wait(d, lambda s: s["fast"]["restarts"] == 1 and s["fast"]["state"] == "running")
+        st = _wait(d, lambda s: s["fast"]["restarts"] == 1 and s["fast"]["state"] == "running")
+        n = int(st["fast"]["samples"])  # type: ignore[call-overload]
+        _wait(d, lambda s: s["fast"]["samples"] > n + 300)  # published after the restart
+        time.sleep(0.5)  # ... and on the wire to the subscriber
+        done.set()
         t.join()
     finally:
         code, _ = d.stop()
