@@ -136,8 +136,8 @@ def decode_packets(data: bytes, hires: bool) -> Packets:
     return Packets(accel, gyro, temp, ts, accel_bad, gyro_bad, temp_bad)
 
 
-def _select_bank(dev: RegisterDevice, bank: int) -> None:
-    dev.write_u8(R.Bank0.REG_BANK_SEL, bank)
+BANK_TRIES = 3  # writes of REG_BANK_SEL, each read back, before a bank select fails
+_BANK_SEL = 0x07  # REG_BANK_SEL [2:0]: the bank, 0..4 (docs/chips/icm42688p.md)
 
 
 def register_plan(c: Icm42688pConfig) -> list[RegisterSetting]:
@@ -247,7 +247,10 @@ class Icm42688pDriver:
         self.gyro_scale = gyro_scale_rads(cfg.gyro_range_dps, cfg.hires)
         self.full_scale = float(2**19 - 1 if cfg.hires else 2**15 - 1)
         self.invalid_packets = 0
-        self.plan = RegisterPlan(dev, register_plan(cfg), _select_bank)
+        # whether the chip may be in a bank other than 0 (the FIFO and its count are read in
+        # bank 0); start() selects bank 0 whatever the chip holds
+        self._off_bank0 = False
+        self.plan = RegisterPlan(dev, register_plan(cfg), self._select_bank)
         # PWR_MGMT0: any reset turns the sensors off, which the plan turns on
         self._checker = RegisterChecker(
             [self.plan], clock, self.counters, sentinels=[(self.plan, self.plan.settings[-1])],
@@ -266,8 +269,33 @@ class Icm42688pDriver:
         # the next sample from one a whole wrap later (host time, for a clock up to 10 % fast)
         self._unwrapped_ns = 0.9 * (R.TIMESTAMP_MODULO - 1.5 * self.ticks_per_sample) * R.TICK_NS
 
+    def _select_bank(self, dev: RegisterDevice, bank: int) -> None:
+        """Select a register bank, and read the selection back until it holds: SPI has no
+        acknowledge, so a write lost on the line (a garbled transfer) shows only by reading.
+        Unchecked, a lost select made the register re-check read another bank's register and
+        report a chip reset that never happened (a re-initialisation and a hundred samples
+        lost), and a lost return to bank 0 made the next poll read its FIFO count and data from
+        bank 1 or 2. A select that fails leaves the bank unknown: the next read selects bank 0
+        first. Nothing to do for bank 0 while the chip is known to be there."""
+        if bank == 0 and not self._off_bank0:
+            return
+        self._off_bank0 = True
+        got = -1
+        for _ in range(BANK_TRIES):
+            dev.write_u8(R.Bank0.REG_BANK_SEL, bank)
+            got = dev.read_u8(R.Bank0.REG_BANK_SEL)
+            if got & _BANK_SEL == bank:
+                self._off_bank0 = bank != 0
+                return
+        raise BusError(
+            0, f"REG_BANK_SEL reads 0x{got:02x} after selecting bank {bank} {BANK_TRIES} times"
+        )
+
     def start(self) -> Iterator[int]:
-        _select_bank(self.dev, 0)  # a stale bank would make WHO_AM_I read wrong
+        self._off_bank0 = True  # until the soft reset below has selected bank 0
+        # a stale bank would make WHO_AM_I read wrong (not read back: a chip that does not
+        # answer is best told by its WHO_AM_I, and a select that was lost fails the reset)
+        self.dev.write_u8(R.Bank0.REG_BANK_SEL, 0)
         who = self.dev.read_u8(R.Bank0.WHO_AM_I)
         if who != R.WHO_AM_I_VALUE:
             raise DeviceIdentityError(
@@ -279,6 +307,7 @@ class Icm42688pDriver:
         yield R.RESET_WAIT_NS
         if not self.dev.read_u8(R.Bank0.INT_STATUS) & R.IntStatus.RESET_DONE_INT:
             raise DeviceIdentityError("ICM-42688-P did not report RESET_DONE after soft reset")
+        self._off_bank0 = False  # the reset selected bank 0
         self.counters.resets += 1
         for s in self.plan.settings:  # power on last, once everything is set
             self.plan.write(s)
@@ -324,6 +353,8 @@ class Icm42688pDriver:
         )
 
     def read(self) -> RawBatch:
+        if self._off_bank0:  # a bank select failed: the FIFO is in bank 0
+            self._select_bank(self.dev, 0)
         t_before = self.clock.now_ns()
         prev_count, self._count_ns = self._count_ns, t_before
         head = self.dev.read(R.Bank0.INT_STATUS, 3)
