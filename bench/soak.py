@@ -22,8 +22,10 @@ wire has passed the later mark, and over the whole run from the first poll to th
 At the end it stops the daemon (SIGTERM), then prints and writes (`--out`, markdown) per device:
 samples received, seq gaps on the wire, lost_samples, whether they agree, restarts, chip resets,
 bus errors by kind; per bus: process restarts and their last error; per process: RSS at the start
-(first poll with every device running), after warm-up (`--warmup`, 120 s) and at the end. The
-load average (start, end) is printed too.
+(first poll with every device running), after warm-up (`--warmup`, 120 s) and at the end, and
+how much of the growth is anonymous memory (RssAnon: heaps, not mapped files). The load average
+(start, end) is printed too. bench/memwatch.py breaks one process's RSS down further (glibc's
+heaps, other anonymous mappings).
 
 Run from the repository root:
 
@@ -110,6 +112,17 @@ class Poll:
     t: float  # seconds since the daemon started
     status: dict[str, Any]
     rss_kb: dict[str, tuple[int, int]]  # process ("daemon" or bus key) -> (pid, VmRSS kB)
+    anon_kb: dict[str, int] = field(default_factory=dict)  # process -> RssAnon kB
+
+
+def anon_kb(pid: int) -> int | None:
+    """RssAnon: the heaps, stacks and mmapped buffers, not the mapped files (libraries)."""
+    try:
+        text = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return None
+    m = re.search(r"^RssAnon:\s+(\d+) kB", text, re.M)
+    return int(m.group(1)) if m else None
 
 
 def rss_kb(pid: int) -> int | None:
@@ -217,7 +230,8 @@ def main() -> int:
                 for b in st["buses"]:
                     if b["pid"] is not None:
                         rss[b["bus"]] = (b["pid"], rss_kb(b["pid"]) or 0)
-                p = Poll(time.monotonic() - t0, st, rss)
+                anon = {k: anon_kb(pid) or 0 for k, (pid, _) in rss.items()}
+                p = Poll(time.monotonic() - t0, st, rss, anon)
                 polls.append(p)
                 print(progress_line(p, streams), flush=True)
             time.sleep(max(0.0, min(next_poll, end) - time.monotonic()))
@@ -324,19 +338,23 @@ def render(args: argparse.Namespace, polls: list[Poll], streams: dict[str, Strea
     out += [
         "",
         "| process | pid | RSS start (MB) | after warm-up (MB) | end (MB) "
-        "| growth since warm-up (MB) |",
-        "|---|---|---|---|---|---|",
+        "| growth since warm-up (MB) | of which anonymous (MB) |",
+        "|---|---|---|---|---|---|---|",
     ]
     i0 = first_running(polls)
     warm = next((p for p in polls if p.t >= polls[i0].t + args.warmup), polls[-1])
     for proc, (pid, end_kb) in polls[-1].rss_kb.items():
         same = [p for p in polls[i0:] if p.rss_kb.get(proc, (None, 0))[0] == pid]
         start_kb = same[0].rss_kb[proc][1]
-        w = next((p for p in same if p.t >= warm.t), same[-1]).rss_kb[proc][1]
+        # a process started later (a restarted bus process) warms up from its own start
+        warm_t = max(warm.t, same[0].t + args.warmup)
+        wp = next((p for p in same if p.t >= warm_t), same[-1])
+        w = wp.rss_kb[proc][1]
+        anon = (polls[-1].anon_kb.get(proc, 0) - wp.anon_kb.get(proc, 0)) / 1024
         note = "" if same[0] is polls[i0] else f" (this process since {same[0].t:.0f} s)"
         out.append(
             f"| {proc}{note} | {pid} | {start_kb / 1024:.1f} | {w / 1024:.1f} | "
-            f"{end_kb / 1024:.1f} | {(end_kb - w) / 1024:+.1f} |"
+            f"{end_kb / 1024:.1f} | {(end_kb - w) / 1024:+.1f} | {anon:+.1f} |"
         )
     return "\n".join(out) + "\n"
 

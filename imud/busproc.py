@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import mmap
 import signal
 import socket
 import struct
@@ -64,6 +65,24 @@ _COUNTERS = (
 )  # fmt: skip
 
 Put = Callable[[bytes], Any]
+
+
+def _recv_buffer() -> mmap.mmap:
+    """A relay's receive buffer, big enough for any message (`RECV_MAX`), allocated once.
+
+    Not `sock.recv(RECV_MAX)`: CPython mallocs RECV_MAX bytes for every message and shrinks the
+    block to the message's size. The first such block freed whole (a receive that timed out
+    while a child started) raised glibc's dynamic mmap threshold to its size (1 MiB + 4 KiB,
+    read in the running daemon with gdb; the trim threshold to twice that), so from then on every
+    message's 1 MiB came out of a malloc heap shared with Zenoh's and Python's allocations, each
+    relay holding one while it waited in recv. The small blocks left in the holes meant that the
+    next 1 MiB often had to come from fresh memory: on configs/sim.toml the daemon's RSS grew by
+    15 MB in the 4 minutes after warm-up and kept growing (33 MB in 30 minutes on the soak
+    config), all of it free memory inside the heaps (`malloc_trim(0)` gave back 22 MB), and
+    more arenas only spread it over more heaps. Received here, the daemon stays at 66 MB
+    (docs/reliability.md, "Soak"; bench/recv_heap.py shows the pattern alone). An anonymous
+    private mapping costs RSS only for the pages messages touch (a batch is a few kB)."""
+    return mmap.mmap(-1, RECV_MAX, flags=mmap.MAP_PRIVATE)
 
 
 class RunnerProxy:
@@ -170,6 +189,7 @@ class BusProcess:
         self.backoff = Backoff(RESTART_MIN_NS, RESTART_MAX_NS)
         self.restarts = 0
         self.last_error: str | None = None
+        self._recv_buf = _recv_buffer()
 
     def _proxies(self, proxies: list[RunnerProxy]) -> list[RunnerProxy]:
         for i, r in enumerate(proxies):
@@ -250,22 +270,29 @@ class BusProcess:
         return ours
 
     def _relay(self, sock: socket.socket) -> str | None:
-        """Until the child exits (None) or hangs (why)."""
+        """Until the child exits (None) or hangs (why).
+
+        Messages are received into this relay's own buffer (`_recv_buffer`), and each batch is
+        copied out at its size: `sock.recv(RECV_MAX)` would malloc 1 MiB per message and shrink
+        it, which fragments the daemon's heap for good (see `_recv_buffer`)."""
         sock.settimeout(0.5)
+        buf = self._recv_buf
+        view = memoryview(buf)
         while not self.stop.is_set():
             self.heartbeat_ns = time.monotonic_ns()
             limit = self.hung_s if self._reported else max(self.hung_s, START_S)
             if self.heartbeat_ns - self.worker_heartbeat_ns > limit * 1e9:
                 return f"bus worker made no progress for {limit:g} s (stuck in a bus call?)"
             try:
-                msg = sock.recv(RECV_MAX)
+                n = sock.recv_into(buf)
             except TimeoutError:
                 continue
-            if not msg:
+            if not n:
                 return None  # the child exited
-            if msg[:1] == PUBLISH:
-                _, index, kind = HEADER.unpack_from(msg)
-                payload = msg[HEADER.size :]
+            tag = buf[:1]
+            if tag == PUBLISH:
+                _, index, kind = HEADER.unpack_from(buf)
+                payload = view[HEADER.size : n].tobytes()
                 put = self.puts[index][kind]
                 if kind == KIND_DATA:
                     self.runners[index].saw_batch(payload)
@@ -274,15 +301,15 @@ class BusProcess:
                         put(payload)
                     except Exception:  # a closing session at shutdown: log, go on
                         log.exception("publishing failed")
-            elif msg[:1] == STATUS:
-                body = json.loads(msg[1:])
+            elif tag == STATUS:
+                body = json.loads(view[1:n].tobytes())
                 self.worker_heartbeat_ns = int(body["heartbeat_ns"]) or time.monotonic_ns()
                 self._reported = True
                 if int(body.get("generation", 0)) == self._generation:
                     for r, st in zip(self.runners, body["devices"], strict=True):
                         r.update(st)
-            elif msg[:1] == APPLIED:
-                (generation,) = GENERATION.unpack_from(msg, 1)
+            elif tag == APPLIED:
+                (generation,) = GENERATION.unpack_from(buf, 1)
                 self._take_pending(generation)
         return None
 
