@@ -166,8 +166,11 @@ class Stim300Driver:
 
     # --- read -------------------------------------------------------------------------------
     def _read_port(self) -> bytes:
+        """What has arrived, read at its size: pyserial allocates the whole size asked for and
+        shrinks it after, and 64 KiB a read left the bus process's heap growing (+10.6 MB in a
+        30-minute soak, docs/reliability.md); asked only what is waiting, it stays flat."""
         try:
-            data = self.port.read(READ_MAX)
+            data = self.port.read(max(1, min(READ_MAX, self.port.in_waiting)))
         except OSError as e:  # pyserial's SerialException is one: the device is gone
             self._close()  # the next start reopens it
             raise BusError(e.errno or 0, f"read {self.port.port}: {e}") from e
