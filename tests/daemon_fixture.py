@@ -81,6 +81,26 @@ class DaemonProc:
             time.sleep(0.2)
         raise AssertionError(f"daemon did not start:\n{self.log.read_text()}")
 
+    def answering_session(self) -> Any:
+        """A Zenoh session (`zenoh.Session`) to the daemon as soon as it answers a status query
+        (its devices may still be starting)."""
+        import imud.client as ic
+
+        for _ in range(300):
+            assert self.proc.poll() is None, self.log.read_text()
+            try:
+                s = ic.open_session(self.endpoint)
+            except ic.NoDaemon:  # not listening yet
+                time.sleep(0.1)
+                continue
+            try:
+                ic.get_status(s, timeout=1.0)
+                return s
+            except ic.NoDaemon:
+                s.close()
+                time.sleep(0.1)
+        raise AssertionError(f"the daemon never answered:\n{self.log.read_text()}")
+
     def collect(
         self,
         key: str,

@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import zenoh
 
 import imud.client as ic
 from imud.config import parse_config
@@ -47,25 +46,6 @@ chip = "mpu6050"
 bus = {{ kind = "sim", bus = "simB", address = 0x68 }}
 odr_hz = 50                     # its 1 kB FIFO holds 1.7 s: no scheduler delay overflows it
 """
-
-
-def _session(d: DaemonProc) -> zenoh.Session:
-    """A session to the daemon as soon as it answers (its devices may still be starting: the
-    first snapshot should come before the first hang)."""
-    for _ in range(300):
-        assert d.proc.poll() is None, d.log.read_text()
-        try:
-            s = ic.open_session(d.endpoint)
-        except Exception:  # not listening yet
-            time.sleep(0.1)
-            continue
-        try:
-            ic.get_status(s, timeout=1.0)
-            return s
-        except ic.NoDaemon:
-            s.close()  # type: ignore[no-untyped-call]
-            time.sleep(0.1)
-    raise AssertionError(f"the daemon never answered:\n{d.log.read_text()}")
 
 
 def _restarted_and_passed(marks: list[tuple[int, dict[str, dict[str, Any]]]], end: int) -> bool:
@@ -95,7 +75,7 @@ def test_a_hung_bus_worker_is_restarted_and_nothing_else_notices(tmp_path: Path)
     marks: list[tuple[int, dict[str, dict[str, Any]]]] = []  # (bus restarts, devices' status)
     try:
         restarts = notes = 0
-        with _session(d) as s:
+        with d.answering_session() as s:
             stuck, steady = Stream(s, "stuck"), Stream(s, "steady")
             deadline = time.monotonic() + 90.0  # a bound for a broken daemon, not a measurement
             while time.monotonic() < deadline:

@@ -55,7 +55,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-import zenoh
 
 import imud.client as ic
 from imud.chips.icm42688p.registers import Bank0
@@ -104,24 +103,6 @@ garbage_identity_s = {GARBAGE_ID_S}
 """
 NAMES = ("faulty", "clean", "spi")
 Devices = dict[str, dict[str, Any]]  # one status snapshot: device name -> its status
-
-
-def _session(d: DaemonProc) -> zenoh.Session:
-    """A session to the daemon as soon as it answers (its devices may still be starting)."""
-    for _ in range(300):
-        assert d.proc.poll() is None, d.log.read_text()
-        try:
-            s = ic.open_session(d.endpoint)
-        except ic.NoDaemon:  # not listening yet
-            time.sleep(0.1)
-            continue
-        try:
-            ic.get_status(s, timeout=1.0)
-            return s
-        except ic.NoDaemon:
-            s.close()  # type: ignore[no-untyped-call]
-            time.sleep(0.1)
-    raise AssertionError(f"the daemon never answered:\n{d.log.read_text()}")
 
 
 def _between_faults(snaps: list[Devices]) -> list[Devices]:
@@ -196,7 +177,7 @@ def test_bus_faults_through_the_daemon(tmp_path: Path) -> None:
     d = DaemonProc(tmp_path, CONFIG)
     snaps: list[Devices] = []
     try:
-        with _session(d) as s:
+        with d.answering_session() as s:
             streams = {n: Stream(s, n) for n in NAMES}
             deadline = time.monotonic() + 90.0  # a bound for a broken daemon, not a measurement
             while time.monotonic() < deadline and not _done(snaps, streams):
