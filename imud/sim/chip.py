@@ -66,13 +66,6 @@ class Measured:
     # were computed (`SampledChip._encode`), or None: made at the latch from the SI values
     enc: Encoded | None = None
 
-    def part(self, a: int, b: int) -> Measured:
-        ta, tg, enc = self.truth_accel, self.truth_gyro, self.enc
-        return Measured(self.t_ns[a:b], self.accel[a:b], self.gyro[a:b], self.temp_c[a:b],
-                        self.truth_t_ns[a:b], None if ta is None else ta[a:b],
-                        None if tg is None else tg[a:b],
-                        None if enc is None else {k: v[a:b] for k, v in enc.items()})  # fmt: skip
-
 
 @dataclass(slots=True)
 class _Run:
