@@ -2,7 +2,7 @@
 keeps, at 2 kHz with bursts only and with the delta outputs at lower rates.
 
 For each case (DEC_RATE, deltas on or off) it wires one simulated ADIS16465 exactly as the daemon
-does (`imud.buses.connect`, the simulator behind its own SPI framing), runs the device's
+does (`imud.wiring`, the simulator behind its own SPI framing), runs the device's
 `DeviceRunner` on the host's monotonic clock in a loop shaped like a bus worker's (step, then
 wait until the next poll is due), and after the start sequence counts for `--seconds`:
 samples published, samples lost (the pipeline's count, from DATA_CNTR), the chip's output
@@ -35,11 +35,11 @@ import threading
 import time
 from typing import Any
 
-from imud.buses.connect import connect
 from imud.clock import MonotonicClock
 from imud.config import parse_config
 from imud.device import DeviceRunner
 from imud.status import DeviceState
+from imud.wiring import connect
 
 
 def device(dec_rate: int, deltas: bool, speed_hz: int, seed: int) -> Any:

@@ -23,12 +23,12 @@ from typing import Any
 import numpy as np
 
 import imud.client as ic
-from imud.buses.connect import connect
 from imud.busworker import _ChipSelects
 from imud.clock import MonotonicClock
 from imud.config import parse_config
 from imud.device import DeviceRunner
 from imud.sim.i2c import SimI2CBus
+from imud.wiring import connect
 
 HEADING = slice(0x1A, 0x1C)  # EUL_HEADING in the register page; offset 18 in the 0x08 burst
 
@@ -74,7 +74,7 @@ def run(transport: str, seconds: float, seed: int) -> dict[str, Any]:
         wait = runner.next_due_ns - clock.now_ns()
         if wait > 0:
             time.sleep(wait / 1e9)
-    st = runner.status()
+    st = runner.status().to_json()
     batches = [ic.decode(x) for x in out]
     seq = np.concatenate([b.seq for b in batches])
     t = np.concatenate([b.t_ns for b in batches])

@@ -3,7 +3,7 @@ against `sock.recv_into(buffer)`, with nothing of imud or Zenoh, and the process
 
 A child process sends `--rate` messages a second of `--size` bytes, in turn over `--receivers`
 SOCK_SEQPACKET socket pairs (as bus processes send batches); this process receives them on a
-thread per socket with a 0.5 s timeout (as the relays in `imud.busproc` do), copies each one's
+thread per socket with a 0.5 s timeout (as the relays in `imud.buslink` do), copies each one's
 payload out and keeps the last `--keep` payloads alive (Zenoh's queues hold a batch for a while
 after `put`), while another thread allocates small objects living a few ms to a minute
 (everything else the daemon does). Every `--interval` seconds it prints the RSS and glibc's

@@ -58,7 +58,8 @@ from common import free_port
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from imud.timestamps import SampleClock, Stamped  # noqa: E402
+from imud.chips.api import Stamped  # noqa: E402
+from imud.timestamps import SampleClock  # noqa: E402
 from imud.wire import decode  # noqa: E402
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent / "configs" / "timestamps.toml"
@@ -371,12 +372,12 @@ def run_virtual(args: argparse.Namespace) -> None:
     """Each I2C/SPI device alone at virtual time, driven by its DeviceRunner as a bus worker
     drives it, with a uniform poll jitter and SPI transfers that take bus time (the chip answers
     in the middle of the transfer)."""
-    from imud.buses.connect import connect
     from imud.clock import VirtualClock
     from imud.config import parse_config
     from imud.device import DeviceRunner
     from imud.sim.i2c import SimI2CBus
     from imud.sim.spi import SimSpiDev
+    from imud.wiring import connect
 
     reads: dict[str, list[list[float]]] = defaultdict(list)
 

@@ -1,15 +1,18 @@
-"""A bus process: one bus worker in a process of its own (`python -m imud.buschild FD`).
+"""A bus worker's end of its socket to the daemon: one `BusWorker`, its batches and status
+snapshots out, the daemon's requests in (`imud.busmsg`).
 
-Measured on a 2-vCPU machine: with every bus worker in one process, a SCHED_FIFO worker still
-waited 3-6 ms for the GIL now and then, longer than a 32 kHz FIFO lasts (docs/performance.md).
-So each bus runs here, owning the bus, its drivers, pipelines and simulators, and hands encoded
-batches and status snapshots to the daemon over a socket (`imud.busmsg`). It never blocks on the
-daemon: a full socket drops the batch and counts it (`publish_dropped`). It imports neither Zenoh
-nor the event loop: the daemon (`imud.busproc`) keeps those, and restarts this process if it dies.
+It runs as a process of its own (`python -m imud.buschild FD`, the default: no other bus, nor
+Zenoh, nor the event loop can hold its interpreter lock; measured on a 2-vCPU machine, a
+SCHED_FIFO worker sharing a process waited 3-6 ms for the GIL now and then, longer than a 32 kHz
+FIFO lasts, docs/performance.md) or as a thread of the daemon (`[daemon] bus_processes = false`).
+Both run this same code over the same socket; only how it is started and stopped differs
+(`imud.buslink`). It never blocks on the daemon: a full socket drops the batch and counts it
+(`publish_dropped`). It imports neither Zenoh nor the event loop.
 
-The daemon sends the spec on stdin as JSON: the config, the clock offset, the log level, which
-bus, and for each device the sequence number and last stamp it had reached (a restart continues
-the stream's `seq`, counting the samples lost meanwhile).
+The daemon sends a spec (JSON): the config, the clock offset, the log level, which bus, for each
+device the sequence number, last stamp and measured period it had reached (a restarted worker
+continues the stream's `seq`, counting the samples lost meanwhile), and whose raw stream is
+wanted.
 """
 
 from __future__ import annotations
@@ -17,7 +20,6 @@ from __future__ import annotations
 import contextlib
 import gc
 import json
-import os
 import signal
 import socket
 import sys
@@ -34,34 +36,40 @@ from imud.busmsg import (
     RECONFIGURE,
     RECV_MAX,
     STATUS,
+    Stream,
 )
-from imud.busworker import BusWorker, build_workers
+from imud.busworker import BusWorker, build_worker
 from imud.clock import MonotonicClock
 from imud.config import parse_config
+from imud.emit import Publish
 from imud.logsetup import setup_logging
+from imud.reload import BusPlan
 
 STATUS_EVERY_S = 0.2
 SNDBUF = 4 << 20
 
 
-def _sender(sock: socket.socket, index: int, kind: int, on_drop: Callable[[], None]) -> Any:
-    head = HEADER.pack(PUBLISH, index, kind)
+def _outlet(sock: socket.socket, stop: threading.Event) -> Any:
+    def outlet(index: int, stream: Stream, on_drop: Callable[[], None]) -> Publish:
+        head = HEADER.pack(PUBLISH, index, stream)
 
-    def send(payload: bytes) -> None:
-        try:
-            sock.send(head + payload, socket.MSG_DONTWAIT)
-        except BlockingIOError:
-            on_drop()
-        except OSError:  # the daemon is gone: stop
-            os.kill(os.getpid(), signal.SIGTERM)
+        def send(payload: bytes) -> None:
+            try:
+                sock.send(head + payload, socket.MSG_DONTWAIT)
+            except BlockingIOError:
+                on_drop()
+            except OSError:  # the daemon is gone: stop
+                stop.set()
 
-    return send
+        return send
+
+    return outlet
 
 
 def _report(sock: socket.socket, worker: BusWorker) -> None:
     while not worker.stop.wait(STATUS_EVERY_S):
         generation, runners = worker.generation, worker.runners
-        devices = [r.status() for r in runners]
+        devices = [r.status().to_json() for r in runners]
         if worker.generation != generation:  # the device list changed meanwhile: next time
             continue
         body = {"heartbeat_ns": worker.heartbeat_ns, "generation": generation, "devices": devices}
@@ -74,23 +82,26 @@ def _report(sock: socket.socket, worker: BusWorker) -> None:
 
 
 def _listen(sock: socket.socket, worker: BusWorker) -> None:
-    """The daemon's requests: start or stop computing a device's uncorrected stream; a
-    reloaded config."""
+    """The daemon's requests, until it closes its end (which stops the worker): start or stop
+    computing a device's uncorrected stream; a reload's plan for this bus."""
     while not worker.stop.is_set():
         try:
             msg = sock.recv(RECV_MAX)
         except OSError:
-            return
+            msg = b""
         if not msg:
-            return  # the daemon closed its end; the sender notices and stops us
+            worker.stop.set()
+            return
         if msg[:1] == RAW_WANTED and len(msg) == HEADER.size:
             _, index, on = HEADER.unpack(msg)
             runners = worker.runners
             if index < len(runners):
                 runners[index].want_raw(bool(on))
         elif msg[:1] == RECONFIGURE:
-            cfg = parse_config(json.loads(msg[1:])["config"])
-            worker.reconfigure([d for d in cfg.device if d.bus.key == worker.key])
+            body = json.loads(msg[1:])
+            cfg = parse_config(body["config"])
+            devices = [d for d in cfg.device if d.bus.key == worker.key]
+            worker.reconfigure(BusPlan.from_json(body["plan"], devices))
 
 
 def _acknowledge(sock: socket.socket) -> Callable[[BusWorker], None]:
@@ -102,33 +113,54 @@ def _acknowledge(sock: socket.socket) -> Callable[[BusWorker], None]:
     return applied
 
 
+def build(sock: socket.socket, spec: dict[str, Any]) -> BusWorker:
+    """The worker a spec describes, publishing on `sock`."""
+    cfg = parse_config(spec["config"])
+    offset = int(spec["offset_ns"])
+    devices = [d for d in cfg.device if d.bus.key == spec["bus"]]
+    stop = threading.Event()
+    worker = build_worker(
+        spec["bus"],
+        devices,
+        MonotonicClock(),
+        offset,
+        _outlet(sock, stop),
+        cfg.daemon.realtime_priority,
+    )
+    worker.stop = stop
+    worker.on_reconfigured = _acknowledge(sock)
+    for index, (next_seq, last_t_ns, period) in spec.get("resume", {}).items():
+        measured = float(period) if period else None
+        worker.runners[int(index)].resume(int(next_seq), int(last_t_ns) - offset, measured)
+    for index in spec.get("raw", []):
+        worker.runners[int(index)].want_raw(True)
+    return worker
+
+
+def serve(sock: socket.socket, worker: BusWorker) -> None:
+    """Run the worker until it is stopped (the daemon closed its end, or asked so)."""
+    threading.Thread(target=_report, args=(sock, worker), name="status", daemon=True).start()
+    threading.Thread(target=_listen, args=(sock, worker), name="control", daemon=True).start()
+    try:
+        worker.run()
+    finally:
+        worker.stop.set()
+
+
 def child_main(fd: int, spec: dict[str, Any]) -> int:
-    """Run one bus worker until SIGTERM (or the daemon's end of the socket closes)."""
+    """A bus process: run one bus worker until SIGTERM or the daemon's end of the socket
+    closes."""
     setup_logging(spec.get("log_level", "info"))
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the daemon, which stops us
     sock = socket.socket(fileno=fd)
     with contextlib.suppress(OSError):
         sock.setsockopt(socket.SOL_SOCKET, 32, SNDBUF)  # SO_SNDBUFFORCE (root): room for bursts
-    cfg = parse_config(spec["config"])
-    offset = int(spec["offset_ns"])
-
-    def publish_for(index: int, _: Any, kind: int, on_drop: Callable[[], None]) -> Any:
-        return _sender(sock, index, kind, on_drop)
-
-    (worker,) = build_workers(cfg, MonotonicClock(), offset, publish_for, only_bus=spec["bus"])
-    worker.on_reconfigured = _acknowledge(sock)
-    for index, (next_seq, last_t_ns, *period) in spec.get("resume", {}).items():
-        measured = float(period[0]) if period and period[0] else None
-        worker.runners[int(index)].resume(int(next_seq), int(last_t_ns) - offset, measured)
-    for index in spec.get("raw", []):
-        worker.runners[int(index)].want_raw(True)
+    worker = build(sock, spec)
     signal.signal(signal.SIGTERM, lambda *_: worker.stop.set())
-    threading.Thread(target=_report, args=(sock, worker), name="status", daemon=True).start()
-    threading.Thread(target=_listen, args=(sock, worker), name="control", daemon=True).start()
     gc.collect()
     gc.freeze()  # see Daemon.run: no long collections on the acquisition path
     sys.setswitchinterval(0.0005)
-    worker.run()
+    serve(sock, worker)
     return 0
 
 

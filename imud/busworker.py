@@ -1,11 +1,11 @@
 """One bus, its devices, one blocking loop: open the bus, connect and start each device, poll
 whichever is due next.
 
-Devices on one bus are served in turn by one worker (a thread here, in its own process by
-default: `imud.buschild`), so their transfers never interleave and the event loop never waits on
-a bus. A bus that will not open, a device that will not connect or start, a driver that raises:
-each is retried with backoff (`imud.backoff`) and shown in that device's status, and none of them
-stops the loop or the bus's other devices.
+Devices on one bus are served in turn by one worker (`imud.buschild` runs it, in a process of its
+own or a thread of the daemon's), so their transfers never interleave and the event loop never
+waits on a bus. A bus that will not open, a device that will not connect or start, a driver that
+raises: each is retried with backoff (`imud.backoff`) and shown in that device's status, and none
+of them stops the loop or the bus's other devices.
 """
 
 from __future__ import annotations
@@ -17,19 +17,24 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from imud.backoff import Backoff
-from imud.buses.models import I2cBus, SerialBus, SimBus, SpiBus
-from imud.busmsg import KIND_DATA, KIND_RAW, KIND_TRUTH
+from imud.buses.models import I2cBus, SimBus
+from imud.busmsg import Stream
 from imud.calib.watch import CalibrationWatcher
-from imud.chips.api import DeviceBase, Driver, SimChip
+from imud.chips.api import DeviceBase, Driver
 from imud.clock import Clock
-from imud.config import ImudConfig
-from imud.device import RETRY_MAX_NS, RETRY_MIN_NS, DeviceRunner, Publish
+from imud.device import RETRY_MAX_NS, RETRY_MIN_NS, DeviceRunner
+from imud.emit import Publish
+from imud.reload import Action, BusPlan
 from imud.rt import go_realtime
+from imud.sim.api import SimChip
 from imud.status import DeviceState
 
 log = logging.getLogger("imud.bus")
 
 Connect = Callable[[Any], tuple[Driver, SimChip | None]]
+# where a runner's batches go: (its index on the bus, which stream, what to call when the way
+# is full) -> the function it publishes with
+Outlet = Callable[[int, Stream, Callable[[], None]], Publish]
 MAX_WAIT_NS = 1_000_000_000  # wake at least this often, so the heartbeat stays fresh
 SHORT_FIFO_NS = 20_000_000  # a FIFO that lasts less than this needs real-time scheduling
 
@@ -51,49 +56,70 @@ class BusWorker:
     realtime: bool = False
     reopen: Backoff = field(default_factory=lambda: Backoff(RETRY_MIN_NS, RETRY_MAX_NS))
     calibrations: CalibrationWatcher | None = None
-    # what makes a new runner (a reloaded config adds or changes a device on this bus)
-    make_runner: Callable[[int, DeviceBase], DeviceRunner] | None = None
-    rebind: Callable[[int, DeviceRunner], None] | None = None
-    # bumped each time the device list changes; a bus process's status and acks carry it
+    outlet: Outlet | None = None  # set by `build_worker`: where runners publish
+    epoch_offset_ns: int = 0
+    # bumped each time the device list changes; status reports and acknowledgements carry it
     generation: int = 0
     on_reconfigured: Callable[[BusWorker], None] | None = None
-    _pending: list[DeviceBase] | None = None
+    _pending: BusPlan | None = None
     _pending_lock: threading.Lock = field(default_factory=threading.Lock)
 
-    def reconfigure(self, devices: list[DeviceBase]) -> None:
-        """A reloaded config's devices for this bus (safe from any thread): applied by the
-        worker between two steps, so no transfer is cut and no batch of a kept device is lost."""
+    # --- runners --------------------------------------------------------------------------------
+    def make_runner(self, index: int, d: DeviceBase) -> DeviceRunner:
+        runner = DeviceRunner(
+            d, None, None, _nowhere, self.epoch_offset_ns, now_ns=self.clock.now_ns
+        )
+        self.bind(index, runner)
+        return runner
+
+    def bind(self, index: int, runner: DeviceRunner) -> None:
+        """Point a runner's streams at its index on this bus (it moves when a reload changes
+        the device list)."""
+        if self.outlet is None:
+            return
+        drop = runner.note_publish_drop
+        runner.publish = self.outlet(index, Stream.DATA, drop)
+        runner.publish_raw = self.outlet(index, Stream.RAW, drop)
+        truth = runner.cfg.publishes_truth
+        runner.publish_truth = self.outlet(index, Stream.TRUTH, _ignore) if truth else None
+
+    # --- reload -------------------------------------------------------------------------------
+    def reconfigure(self, plan: BusPlan) -> None:
+        """A reload's plan for this bus (safe from any thread): applied by the worker between
+        two steps, so no transfer is cut and no batch of a kept device is lost."""
         with self._pending_lock:
-            self._pending = list(devices)
+            self._pending = plan
 
     def _apply_pending(self) -> None:
         with self._pending_lock:
-            devices, self._pending = self._pending, None
-        if devices is None:
+            plan, self._pending = self._pending, None
+        if plan is None:
             return
-        assert self.make_runner is not None and self.rebind is not None
-        old = {r.cfg.name: (r, c) for r, c in zip(self.runners, self.connectors, strict=True)}
+        old = list(zip(self.runners, self.connectors, strict=True))
         runners: list[DeviceRunner] = []
         connectors: list[Connect] = []
-        for index, d in enumerate(devices):
-            kept = old.pop(d.name, None)
-            if kept is not None and kept[0].cfg == d:
-                r, conn = kept  # unchanged: it goes on streaming, its chip untouched
-                self.rebind(index, r)
+        for index, slot in enumerate(plan.slots):
+            d = slot.device
+            if slot.action is Action.KEEP:
+                assert slot.was is not None
+                r, conn = old[slot.was]  # unchanged: it goes on streaming, its chip untouched
+                self.bind(index, r)
             else:
                 r, conn = self.make_runner(index, d), connector(d, self.clock)
-                if kept is not None:  # changed: restart it, its stream's seq continuing
-                    kept[0].stop()
-                    if kept[0].stream_end is not None:
-                        r.resume(*kept[0].stream_end)
+                if slot.action is Action.RESTART:  # its stream's seq continues
+                    assert slot.was is not None
+                    prev = old[slot.was][0]
+                    prev.stop()
+                    if prev.stream_end is not None:
+                        r.resume(*prev.stream_end)
                     log.info("%s: restarting with its new settings", d.name)
                 else:
                     log.info("%s: added", d.name)
             runners.append(r)
             connectors.append(conn)
-        for r, _ in old.values():
-            r.stop()
-            log.info("%s: removed", r.cfg.name)
+        for i in plan.removed:
+            old[i][0].stop()
+            log.info("%s: removed", old[i][0].cfg.name)
         self.runners, self.connectors = runners, connectors
         self.generation += 1
         if self.calibrations is not None:
@@ -101,6 +127,7 @@ class BusWorker:
         if self.on_reconfigured is not None:
             self.on_reconfigured(self)
 
+    # --- the loop -----------------------------------------------------------------------------
     def _bus_failed(self, e: Exception, now: int) -> None:
         wait = self.reopen.failed(now)
         for r in self.runners:
@@ -135,12 +162,12 @@ class BusWorker:
                 r = self.runners[i]
                 try:
                     driver, sim = self.connectors[i](self.bus)
+                    r.attach(driver, sim)
                 except Exception as e:
                     msg = str(e) if isinstance(e, OSError) else r.unexpected("connect", e)
                     r.bus_down(msg, self.reopen.wait_ns)
                     failed = True
                     continue
-                r.attach(driver, sim)
                 self._warn_short_fifo(r, driver)
             if failed:
                 self.reopen.failed(now)
@@ -193,6 +220,14 @@ class BusWorker:
             thread.name = name
 
 
+def _nowhere(_: bytes) -> None:
+    """A runner's publish before `bind` points it somewhere."""
+
+
+def _ignore() -> None:
+    """A truth batch that found the way full: truth is for tests, not counted."""
+
+
 class _ChipSelects:
     """An SPI bus as a whole, or a serial port: nothing shared to open; each device opens its
     own chip select or port."""
@@ -200,66 +235,41 @@ class _ChipSelects:
 
 def opener(d: DeviceBase) -> Callable[[], Any]:
     """What opens the bus this device is on (shared by every device on it)."""
-    from imud.buses.i2c import open_smbus
-    from imud.sim.i2c import SimI2CBus
-
     bus = d.bus
     if isinstance(bus, SimBus) and bus.transport == "i2c":
-        return lambda: SimI2CBus(seed=d.sim.seed if d.sim else 0)
+        from imud.sim.i2c import SimI2CBus
+
+        seed = d.sim.seed if d.sim else 0
+        return lambda: SimI2CBus(seed=seed)
     if isinstance(bus, I2cBus):
+        from imud.buses.i2c import open_smbus
+
         return lambda: open_smbus(bus)
-    assert isinstance(bus, SpiBus | SimBus | SerialBus)
     return _ChipSelects
 
 
 def connector(d: DeviceBase, clock: Clock) -> Connect:
     """Device on an open bus -> (driver, simulator or None)."""
-    from imud.buses.connect import connect
+    from imud.wiring import connect
 
     return lambda shared: connect(d, shared, clock)
 
 
-PublishFor = Callable[[int, DeviceBase, int, Callable[[], None]], Publish]
-
-
-def build_workers(
-    cfg: ImudConfig,
+def build_worker(
+    key: str,
+    devices: list[DeviceBase],
     clock: Clock,
-    offset_ns: int,
-    publish_for: PublishFor,
-    only_bus: str | None = None,
-) -> list[BusWorker]:
-    """One worker per bus, one runner per device. Buses open in their workers.
-
-    `publish_for(index on its bus, device, kind (imud.busmsg KIND_*), on_drop)` gives each
-    runner its publish callables (a queue to the Zenoh publisher thread, or the socket to the
-    daemon process)."""
-    workers: dict[str, BusWorker] = {}
-
-    def make_runner(index: int, d: DeviceBase) -> DeviceRunner:
-        runner = DeviceRunner(d, None, None, lambda _: None, offset_ns, now_ns=clock.now_ns)
-        rebind(index, runner)
-        return runner
-
-    def rebind(index: int, runner: DeviceRunner) -> None:
-        d = runner.cfg
-        runner.publish = publish_for(index, d, KIND_DATA, runner.note_publish_drop)
-        runner.publish_raw = publish_for(index, d, KIND_RAW, runner.note_publish_drop)
-        truth = isinstance(d.bus, SimBus) and d.sim is not None and d.sim.truth
-        runner.publish_truth = publish_for(index, d, KIND_TRUTH, lambda: None) if truth else None
-
-    for d in cfg.device:
-        key = d.bus.key
-        if only_bus is not None and key != only_bus:
-            continue
-        w = workers.get(key)
-        if w is None:
-            w = workers[key] = BusWorker(key, [], [], opener(d), clock)
-            w.realtime_priority = cfg.daemon.realtime_priority
-            w.make_runner, w.rebind = make_runner, rebind
-        w.runners.append(make_runner(len(w.runners), d))
+    epoch_offset_ns: int,
+    outlet: Outlet,
+    realtime_priority: int | None = None,
+) -> BusWorker:
+    """The worker of bus `key` and its devices (in config order), publishing through `outlet`.
+    The bus opens in the worker's own loop."""
+    w = BusWorker(key, [], [], opener(devices[0]), clock, realtime_priority)
+    w.outlet, w.epoch_offset_ns = outlet, epoch_offset_ns
+    for d in devices:
+        w.runners.append(w.make_runner(len(w.runners), d))
         w.connectors.append(connector(d, clock))
-    for w in workers.values():
-        w.calibrations = CalibrationWatcher(list(w.runners))
-        w.calibrations.check()  # before the first sample: it is calibrated from the start
-    return list(workers.values())
+    w.calibrations = CalibrationWatcher(list(w.runners))
+    w.calibrations.check()  # before the first sample: it is calibrated from the start
+    return w

@@ -14,9 +14,8 @@ from typing import Any
 
 import zenoh
 
-from imud.config import DEFAULT_ENDPOINT
 from imud.wire import KIND_SAMPLES, KIND_TRUTH, Batch, WireError, decode
-from imud.zerrors import clean, endpoint_problem
+from imud.zerrors import DEFAULT_ENDPOINT, clean, endpoint_problem
 from imud.zsession import client_config
 
 __all__ = [

@@ -25,9 +25,7 @@ from imud.buses.models import SimBus
 from imud.chips.api import DeviceBase
 from imud.configerrors import explain
 from imud.errors import ConfigError
-from imud.zerrors import endpoint_problem
-
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+from imud.zerrors import DEFAULT_ENDPOINT, endpoint_problem
 
 
 class ZenohSettings(BaseModel):
@@ -169,27 +167,6 @@ def parse_config(raw: dict[str, Any], base_dir: Path | None = None) -> ImudConfi
         model = config_model()
         raise ConfigError([explain(err, raw, model) for err in e.errors()]) from None
     return cfg
-
-
-def calibration_problems(cfg: ImudConfig) -> tuple[list[str], list[str]]:
-    """(errors, notes): why a device's calibration file cannot be applied, one line per device;
-    a file that does not exist yet is a note (it is written by `imud calibrate`, and picked up
-    when it appears). Not part of `parse_config`: a bad calibration file must not stop the
-    daemon (that device runs uncalibrated and says why in status, the others run normally);
-    `imud check-config` and the daemon's start-up log report them."""
-    from imud.calib.watch import load_for
-
-    errors: list[str] = []
-    notes: list[str] = []
-    for i, d in enumerate(cfg.device):
-        _, error = load_for(d)
-        if error is None:
-            continue
-        line = f"device[{i}] {d.name!r}: calibration: {error}"
-        assert d.calibration is not None
-        missing = not d.calibration.exists() and d.calibration.parent.is_dir()
-        (notes if missing else errors).append(line)
-    return errors, notes
 
 
 def load_config(path: str | Path) -> ImudConfig:

@@ -1,12 +1,13 @@
 """The daemon: one anyio event loop for supervision, one worker per bus for blocking I/O.
 
-Bus workers run in their own processes (`imud.buschild`, supervised by `imud.busproc`; the
-default) or as threads here (`[daemon] bus_processes = false`). The event loop answers signals
-and status queries, and tells systemd how things are: READY=1 once every device has either
-started or failed its first attempt (a failed device keeps retrying, and status says why),
-WATCHDOG=1 while the daemon itself is alive and serving. A bus process that crashes or hangs is
-restarted by its relay thread and does not stop the watchdog; in thread mode, where a hung
-worker cannot be restarted, a worker that stops making progress does.
+Each bus's worker runs behind a socket, relayed to Zenoh by a `BusLink` thread here; it runs in a
+process of its own (the default) or, with `[daemon] bus_processes = false`, in a thread of this
+one (`imud.buslink`: the transport is the only difference). The event loop answers signals and
+status queries, and tells systemd how things are: READY=1 once every device has either started
+or failed its first attempt (a failed device keeps retrying, and status says why), WATCHDOG=1
+while the daemon itself is alive and serving. A bus process that crashes or hangs is restarted
+by its link and does not stop the watchdog; an in-process worker that hangs, which nothing can
+restart, does.
 """
 
 from __future__ import annotations
@@ -29,17 +30,13 @@ import zenoh
 from anyio.abc import TaskGroup
 
 from imud import __version__
-from imud.buses.models import SimBus
-from imud.busmsg import KIND_DATA, KIND_RAW, KIND_TRUTH
-from imud.busproc import BusProcess, RunnerProxy
-from imud.busworker import BusWorker, build_workers
+from imud.buslink import BusLink, DeviceView, ProcessTransport, Put, Puts, ThreadTransport
+from imud.busmsg import Stream
 from imud.chips.api import DeviceBase
-from imud.clock import Clock, MonotonicClock, epoch_offset_ns
+from imud.clock import epoch_offset_ns
 from imud.config import ImudConfig, load_config
-from imud.device import DeviceRunner, Publish
 from imud.errors import ConfigError
-from imud.publisher import PublisherThread
-from imud.reload import ConfigFile, ReloadPlan, plan_reload
+from imud.reload import ConfigFile, ReloadPlan, by_bus, plan_reload
 from imud.sdnotify import Notifier
 from imud.status import DeviceState
 from imud.wire import VERSION
@@ -53,8 +50,8 @@ READY_TIMEOUT_S = 30.0  # READY=1 at the latest this long after start, whatever 
 
 
 def _declare_publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
-    # BLOCK: subscribers get every batch through transient stalls. It runs on the publisher
-    # thread or a relay thread, never on a bus worker, so acquisition never waits for the network.
+    # BLOCK: subscribers get every batch through transient stalls. It runs on a link's relay
+    # thread, never on a bus worker, so acquisition never waits for the network.
     return session.declare_publisher(
         key,
         encoding=zenoh.Encoding.APPLICATION_OCTET_STREAM.with_schema(f"imud.batch.v{VERSION}"),
@@ -63,14 +60,14 @@ def _declare_publisher(session: zenoh.Session, key: str) -> zenoh.Publisher:
     )
 
 
-def _key(prefix: str, d: DeviceBase, kind: int) -> str:
+def _key(prefix: str, d: DeviceBase, stream: Stream) -> str:
+    return f"{prefix}/{d.name}/{stream.key}"
+
+
+def _streams(d: DeviceBase) -> tuple[Stream, ...]:
     return (
-        f"{prefix}/{d.name}/" + {KIND_DATA: "imu", KIND_RAW: "raw", KIND_TRUTH: "sim/truth"}[kind]
+        (Stream.DATA, Stream.RAW, Stream.TRUTH) if d.publishes_truth else (Stream.DATA, Stream.RAW)
     )
-
-
-def _has_truth(d: DeviceBase) -> bool:
-    return isinstance(d.bus, SimBus) and d.sim is not None and d.sim.truth
 
 
 def _on_matching(pub: zenoh.Publisher, want: Callable[[bool], None]) -> Any:
@@ -85,10 +82,10 @@ def _on_matching(pub: zenoh.Publisher, want: Callable[[bool], None]) -> Any:
 
 @dataclass
 class _Endpoints:
-    """A device's side of the Zenoh session: its publishers by kind (imud.busmsg KIND_*), the
-    raw stream's matching listener and its status queryable."""
+    """A device's side of the Zenoh session: its publishers by stream, the raw stream's
+    matching listener and its status queryable."""
 
-    pubs: dict[int, zenoh.Publisher]
+    pubs: dict[Stream, zenoh.Publisher]
     others: list[Any]
 
     def undeclare(self) -> None:
@@ -98,18 +95,14 @@ class _Endpoints:
 
 
 class Daemon:
-    def __init__(
-        self, cfg: ImudConfig, clock: Clock | None = None, config_path: Path | None = None
-    ) -> None:
+    def __init__(self, cfg: ImudConfig, config_path: Path | None = None) -> None:
         self.cfg = cfg
-        self.clock = clock or MonotonicClock()
         self.config_path = config_path  # watched for edits, re-read on SIGHUP; None: neither
         self.started = time.monotonic()
         self.notifier = Notifier()
-        self.workers: list[BusWorker | BusProcess] = []
-        self.publisher: PublisherThread | None = None
+        self.links: list[BusLink] = []
         self.ready = False
-        # a worker (thread mode) or relay silent this long ([daemon] hung_after_s): not serving
+        # a link's relay silent this long ([daemon] hung_after_s): not serving
         self.stall_ns = int(cfg.daemon.hung_after_s * 1e9)
         self._stop_requested = threading.Event()
         self._reload_requested = threading.Event()
@@ -135,21 +128,17 @@ class Daemon:
         self._reload_requested.set()
 
     @property
-    def runners(self) -> list[DeviceRunner | RunnerProxy]:
-        return [r for w in self.workers for r in w.runners]
+    def views(self) -> list[DeviceView]:
+        return [v for link in self.links for v in link.views]
 
-    def _runner(self, name: str) -> DeviceRunner | RunnerProxy | None:
-        return next((r for r in self.runners if r.cfg.name == name), None)
+    def _view(self, name: str) -> DeviceView | None:
+        return next((v for v in self.views if v.cfg.name == name), None)
 
     def status(self) -> dict[str, Any]:
-        buses = []
-        for w in self.workers:
-            if isinstance(w, BusProcess):
-                pid = w.proc.pid if w.proc is not None and w.proc.poll() is None else None
-                buses.append({"bus": w.key, "pid": pid, "restarts": w.restarts,
-                              "last_error": w.last_error})  # fmt: skip
-            else:
-                buses.append({"bus": w.key, "pid": None, "restarts": 0, "last_error": None})
+        buses = [
+            {"bus": w.key, "pid": w.pid, "restarts": w.restarts, "last_error": w.last_error}
+            for w in self.links
+        ]
         return {
             "version": __version__,
             "uptime_s": round(time.monotonic() - self.started, 3),
@@ -161,16 +150,15 @@ class Daemon:
             "last_reload_at": self.last_reload_at,
             "restart_needed": self.restart_needed,
             "buses": buses,
-            "devices": [r.status() for r in self.runners],
+            "devices": [v.status().to_json() for v in self.views],
         }
 
     # --- Zenoh side -----------------------------------------------------------------------------
     def _declare(self, session: zenoh.Session, prefix: str, d: DeviceBase) -> _Endpoints:
         name = d.name
-        kinds = (KIND_DATA, KIND_RAW, KIND_TRUTH) if _has_truth(d) else (KIND_DATA, KIND_RAW)
-        pubs = {k: _declare_publisher(session, _key(prefix, d, k)) for k in kinds}
+        pubs = {k: _declare_publisher(session, _key(prefix, d, k)) for k in _streams(d)}
         # the raw stream is computed only while someone subscribes
-        listener = _on_matching(pubs[KIND_RAW], lambda on: self._want_raw(name, on))
+        listener = _on_matching(pubs[Stream.RAW], lambda on: self._want_raw(name, on))
         q = session.declare_queryable(f"{prefix}/{name}/status", self._device_answer(name))
         return _Endpoints(pubs, [listener, q])
 
@@ -186,27 +174,24 @@ class Daemon:
 
     def _want_raw(self, name: str, on: bool) -> None:
         (self._raw_on.add if on else self._raw_on.discard)(name)
-        r = self._runner(name)
-        if r is not None:
-            r.want_raw(on)
+        for link in self.links:
+            link.want_raw(name, on)
 
-    def _put(self, name: str, kind: int) -> Publish:
+    def _put(self, name: str, stream: Stream) -> Put:
         """Publish on the device's current publisher: a reload that reopens the session swaps
-        publishers under the bus workers without them noticing."""
+        publishers under the links without them noticing."""
 
         def put(payload: bytes) -> None:
             ends = self._ends.get(name)
-            pub = ends.pubs.get(kind) if ends is not None else None
+            pub = ends.pubs.get(stream) if ends is not None else None
             if pub is not None:
                 pub.put(payload)
 
         return put
 
     # --- bus workers ----------------------------------------------------------------------------
-    def _puts(self, d: DeviceBase) -> tuple[Publish, Publish | None, Publish]:
-        n = d.name
-        truth = self._put(n, KIND_TRUTH) if _has_truth(d) else None
-        return self._put(n, KIND_DATA), truth, self._put(n, KIND_RAW)
+    def _puts(self, d: DeviceBase) -> Puts:
+        return {s: self._put(d.name, s) for s in _streams(d)}
 
     def _spec(self, cfg: ImudConfig) -> dict[str, Any]:
         return {
@@ -215,37 +200,17 @@ class Daemon:
             "log_level": logging.getLevelName(logging.getLogger().getEffectiveLevel()),
         }
 
-    def _make_workers(
-        self, cfg: ImudConfig, buses: dict[str, list[DeviceBase]]
-    ) -> list[BusWorker | BusProcess]:
-        """Workers for `buses` (bus key -> its devices in `cfg`): one child process per bus, or
-        threads here (`[daemon] bus_processes = false`)."""
-        if self.cfg.daemon.bus_processes:
-            spec = self._spec(cfg)
-            return [
-                BusProcess(key, ds, spec, [self._puts(d) for d in ds]) for key, ds in buses.items()
-            ]
-        publisher = self.publisher
-        if publisher is None:
-            rt = self.cfg.daemon.realtime_priority
-            publisher = self.publisher = PublisherThread(
-                realtime_priority=max(1, rt - 1) if rt else None
-            )
-            publisher.start()
+    def _make_links(self, cfg: ImudConfig, buses: dict[str, list[DeviceBase]]) -> list[BusLink]:
+        """Links for `buses` (bus key -> its devices in `cfg`), each worker in a process of its
+        own, or in a thread here (`[daemon] bus_processes = false`)."""
+        spec = self._spec(cfg)
+        transport = ProcessTransport if self.cfg.daemon.bus_processes else ThreadTransport
+        return [
+            BusLink(key, ds, spec, [self._puts(d) for d in ds], transport, self._raw_on)
+            for key, ds in buses.items()
+        ]
 
-        def publish_for(_: int, d: DeviceBase, kind: int, on_drop: Callable[[], None]) -> Publish:
-            put = self._put(d.name, kind)
-            return lambda payload: publisher.submit(put, payload, on_drop)
-
-        workers: list[BusWorker | BusProcess] = []
-        for key in buses:
-            for w in build_workers(cfg, self.clock, self.offset_ns, publish_for, only_bus=key):
-                for r in w.runners:
-                    r.want_raw(r.cfg.name in self._raw_on)
-                workers.append(w)
-        return workers
-
-    def _start_worker(self, w: BusWorker | BusProcess) -> None:
+    def _start_link(self, w: BusLink) -> None:
         assert self._tg is not None
         self._tg.start_soon(anyio.to_thread.run_sync, w.run)
 
@@ -255,9 +220,9 @@ class Daemon:
 
     def _device_answer(self, name: str) -> Callable[[zenoh.Query], None]:
         def answer(q: zenoh.Query) -> None:
-            r = self._runner(name)
-            if r is not None:  # gone in a reload: no answer, as for any unknown device
-                self._answer(q, r.status())
+            v = self._view(name)
+            if v is not None:  # gone in a reload: no answer, as for any unknown device
+                self._answer(q, v.status().to_json())
 
         return answer
 
@@ -274,10 +239,7 @@ class Daemon:
         try:
             self.offset_ns = epoch_offset_ns()
             self._declare_all(self.session, self.cfg)
-            buses: dict[str, list[DeviceBase]] = {}
-            for d in self.cfg.device:
-                buses.setdefault(d.bus.key, []).append(d)
-            self.workers = self._make_workers(self.cfg, buses)
+            self.links = self._make_links(self.cfg, by_bus(self.cfg))
             # Everything built so far lives as long as the daemon: move it out of the cyclic
             # collector's sight, so a full collection cannot stall a bus worker for milliseconds
             # (a 32 kHz FIFO overflows after 4 ms). The default thresholds stay: they keep each
@@ -289,17 +251,15 @@ class Daemon:
             sys.setswitchinterval(0.0005)
             async with anyio.create_task_group() as tg:
                 self._tg = tg
-                for w in self.workers:
-                    self._start_worker(w)
+                for w in self.links:
+                    self._start_link(w)
                 tg.start_soon(self._supervise)
                 tg.start_soon(self._watch_config)
                 await self._wait_for_stop()
                 self.notifier.notify("STOPPING=1")
-                for w in self.workers:
+                for w in self.links:
                     w.stop.set()
                 tg.cancel_scope.cancel()  # workers finish their current step and return
-            if self.publisher is not None:
-                await anyio.to_thread.run_sync(self.publisher.stop)
             for ends in self._ends.values():
                 ends.undeclare()
         finally:
@@ -368,9 +328,9 @@ class Daemon:
                 ends = self._ends.get(d.name)
                 if ends is None:  # added
                     self._ends[d.name] = self._declare(self.session, prefix, d)
-                elif _has_truth(d) and KIND_TRUTH not in ends.pubs:
-                    ends.pubs[KIND_TRUTH] = _declare_publisher(
-                        self.session, _key(prefix, d, KIND_TRUTH)
+                elif d.publishes_truth and Stream.TRUTH not in ends.pubs:
+                    ends.pubs[Stream.TRUTH] = _declare_publisher(
+                        self.session, _key(prefix, d, Stream.TRUTH)
                     )
                 # a changed device keeps its publishers: its last batches and its successor's
                 # first go out on the same ones, none dropped in between (a truth publisher it no
@@ -438,20 +398,17 @@ class Daemon:
 
     def _apply_buses(self, new: ImudConfig, plan: ReloadPlan) -> None:
         config = new.model_dump(mode="json")
-        for w in [w for w in self.workers if w.key in plan.stop]:
-            w.stop.set()  # its thread puts its devices to sleep and returns
-            self.workers.remove(w)
-        for w in self.workers:
-            devices = plan.reconfigure.get(w.key)
-            if devices is None:
-                continue
-            if isinstance(w, BusProcess):
-                w.reconfigure(devices, config, [self._puts(d) for d in devices], self._raw_on)
-            else:
-                w.reconfigure(devices)
-        for w in self._make_workers(new, plan.start):
-            self.workers.append(w)
-            self._start_worker(w)
+        for w in [w for w in self.links if w.key in plan.stop]:
+            w.stop.set()  # its worker puts its devices to sleep and returns
+            self.links.remove(w)
+        for w in self.links:
+            bus_plan = plan.reconfigure.get(w.key)
+            if bus_plan is not None:
+                puts = [self._puts(s.device) for s in bus_plan.slots]
+                w.reconfigure(bus_plan, config, puts)
+        for w in self._make_links(new, plan.start):
+            self.links.append(w)
+            self._start_link(w)
 
     async def _wait_for_stop(self) -> None:
         async with anyio.create_task_group() as tg:
@@ -476,32 +433,30 @@ class Daemon:
             tg.start_soon(requested)
 
     def _summary(self) -> str:
-        rs = self.runners
-        running = sum(r.state == DeviceState.RUNNING for r in rs)
-        lost = sum(r.lost_samples for r in rs)
-        rate = sum(r.measured_rate_hz for r in rs)
-        return f"{running}/{len(rs)} devices running, {rate:.0f} samples/s, {lost} lost"
+        sts = [v.status() for v in self.views]
+        running = sum(s.state == DeviceState.RUNNING for s in sts)
+        lost = sum(s.lost_samples for s in sts)
+        rate = sum(s.measured_rate_hz for s in sts)
+        return f"{running}/{len(sts)} devices running, {rate:.0f} samples/s, {lost} lost"
 
     def _ready_line(self) -> str:
-        rs = self.runners
-        running = sum(r.state == DeviceState.RUNNING for r in rs)
-        text = f"{running}/{len(rs)} devices running"
-        down = [r for r in rs if r.state != DeviceState.RUNNING]
+        sts = [v.status() for v in self.views]
+        running = sum(s.state == DeviceState.RUNNING for s in sts)
+        text = f"{running}/{len(sts)} devices running"
+        down = [s for s in sts if s.state != DeviceState.RUNNING]
         if down:
-            text += "; " + "; ".join(
-                f"{r.cfg.name}: {r.state}: {r.status().get('last_error') or '-'}" for r in down
-            )
+            text += "; " + "; ".join(f"{s.name}: {s.state}: {s.last_error or '-'}" for s in down)
         return text
 
     def _serving(self, now_ns: int) -> list[str]:
-        """What keeps the daemon from serving: relay threads (process mode) or bus workers
-        (thread mode, where a hung one cannot be restarted) that stopped making progress."""
-        return [w.key for w in self.workers if now_ns - w.heartbeat_ns > self.stall_ns]
+        """What keeps the daemon from serving: links whose relay stopped making progress (or
+        whose in-process worker hangs, which nothing can restart)."""
+        return [w.key for w in self.links if now_ns - w.heartbeat_ns > self.stall_ns]
 
     async def _supervise(self) -> None:
         deadline = time.monotonic() + READY_TIMEOUT_S
         while (
-            any(r.state == DeviceState.STARTING for r in self.runners)
+            any(v.status().state == DeviceState.STARTING for v in self.views)
             and time.monotonic() < deadline
         ):
             await anyio.sleep(0.02)

@@ -8,7 +8,7 @@ per bus, Zenoh's runtime, the event loop) pass batches between them all the time
 This cap was the first answer to the daemon's RSS creeping in the soak, and only a partial one:
 with glibc's default the daemon grew by 50 MB in 11 minutes on configs/sim.toml, with at most two
 arenas by 6-13 MB in 5. The cause was the relays' `sock.recv(1 MiB)` per message, cutting 1 MiB
-blocks out of the heaps (`imud.busproc._recv_buffer` has the story); since they receive into a
+blocks out of the heaps (`imud.buslink._recv_buffer` has the story); since they receive into a
 buffer of their own the daemon's RSS stays flat with or without this cap (docs/reliability.md,
 "Soak": 65.8-66.0 MB over 4-6 minutes either way). It stays as a bound on how far any later
 pattern of that kind can spread: two arenas cost some contention on malloc's locks, which at a

@@ -19,8 +19,8 @@ import numpy.typing as npt
 from imud.calib.model import CalibrationModel, apply, fill_temperature
 from imud.calib.track import GyroBiasTracker
 from imud.channels import INVALID_MASK, SATURATED, Channel, SampleFlag
-from imud.chips.api import FifoRead, RawBatch
-from imud.timestamps import SampleClock, Stamped
+from imud.chips.api import DeviceBase, Driver, FifoRead, RawBatch, Stamped
+from imud.timestamps import SampleClock
 from imud.wire import FLAG_CALIBRATED, FLAG_RESYNC
 
 F64 = npt.NDArray[np.float64]
@@ -189,6 +189,11 @@ class Pipeline:
             clock.resume(*resume)
             self._last_out = resume[1] - group_delay_ns
 
+    def restarted(self) -> None:
+        """The chip was re-initialised: its sample grid restarts; `seq` goes on counting."""
+        if self.clock.k_last >= 0:
+            self.clock.rebase()
+
     def _continue(self, st: Stamped) -> Stamped:
         """A driver that stamps its own samples counts `seq` from 0: shift it to continue the
         stream being resumed, counting the samples the time elapsed since then held."""
@@ -253,3 +258,23 @@ class Pipeline:
             si if self.want_raw else None,
             outside,
         )
+
+
+def build_pipeline(
+    driver: Driver,
+    cfg: DeviceBase,
+    calibration: CalibrationModel | None,
+    epoch_offset_ns: int,
+    resume: tuple[int, int, float | None] | None,
+) -> Pipeline:
+    """A started device's pipeline: its chip's sample clock, its calibration, the gyro bias
+    tracker when enabled, the driver's filter delay."""
+    tracking = cfg.gyro_bias_tracking
+    return Pipeline(
+        SampleClock(driver.nominal_period_ns),
+        calibration,
+        epoch_offset_ns,
+        resume,
+        GyroBiasTracker(tracking) if tracking.enabled else None,
+        group_delay_ns=driver.group_delay_ns,
+    )

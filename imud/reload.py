@@ -15,26 +15,86 @@ from __future__ import annotations
 import hashlib
 import os
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
+from typing import Any
 
 from imud.chips.api import DeviceBase
 from imud.config import ImudConfig
 
 
-def _by_bus(cfg: ImudConfig) -> dict[str, list[DeviceBase]]:
+def by_bus(cfg: ImudConfig) -> dict[str, list[DeviceBase]]:
+    """The config's devices grouped by the bus they are on (its worker's key), in config order."""
     out: dict[str, list[DeviceBase]] = {}
     for d in cfg.device:
         out.setdefault(d.bus.key, []).append(d)
     return out
 
 
+class Action(StrEnum):
+    KEEP = "keep"  # unchanged: it goes on streaming, its chip untouched
+    RESTART = "restart"  # changed: restarted with its new settings, its seq continuing
+    START = "start"  # added
+
+
+@dataclass(frozen=True)
+class Slot:
+    """One device of a bus's new list: what happens to it, and its index in the old list."""
+
+    device: DeviceBase
+    action: Action
+    was: int | None = None
+
+
+@dataclass
+class BusPlan:
+    """What a reload does on one bus: the new device list, slot by slot, and the old indices
+    no slot takes over (removed devices). The daemon's relay and the bus worker both apply this
+    one plan, by index."""
+
+    slots: list[Slot]
+    removed: list[int] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"slots": [[s.action.value, s.was] for s in self.slots], "removed": self.removed}
+
+    @classmethod
+    def from_json(cls, body: dict[str, Any], devices: list[DeviceBase]) -> BusPlan:
+        """The plan the daemon sent, over the new config's `devices` on this bus."""
+        slots = [
+            Slot(d, Action(action), was)
+            for d, (action, was) in zip(devices, body["slots"], strict=True)
+        ]
+        return cls(slots, list(body["removed"]))
+
+    @property
+    def changes_nothing(self) -> bool:
+        return not self.removed and all(
+            s.action is Action.KEEP and s.was == i for i, s in enumerate(self.slots)
+        )
+
+
+def plan_bus(old: list[DeviceBase], new: list[DeviceBase]) -> BusPlan:
+    """Keep a device whose whole table is unchanged, restart one whose table changed (matched
+    by name), start one that is new; the old ones not matched are removed."""
+    before = {d.name: i for i, d in enumerate(old)}
+    slots = []
+    for d in new:
+        i = before.pop(d.name, None)
+        if i is None:
+            slots.append(Slot(d, Action.START))
+        else:
+            slots.append(Slot(d, Action.KEEP if old[i] == d else Action.RESTART, i))
+    return BusPlan(slots, sorted(before.values()))
+
+
 @dataclass
 class ReloadPlan:
-    """What a reload does. Bus keys map to the new config's devices on that bus."""
+    """What a reload does: buses to start (with their devices), to stop, and to change."""
 
     start: dict[str, list[DeviceBase]] = field(default_factory=dict)  # new buses
     stop: list[str] = field(default_factory=list)  # buses with no device left
-    reconfigure: dict[str, list[DeviceBase]] = field(default_factory=dict)  # changed buses
+    reconfigure: dict[str, BusPlan] = field(default_factory=dict)  # changed buses
     added: list[str] = field(default_factory=list)
     removed: list[str] = field(default_factory=list)
     changed: list[str] = field(default_factory=list)
@@ -82,12 +142,14 @@ def plan_reload(old: ImudConfig, new: ImudConfig) -> ReloadPlan:
             plan.changed.append(d.name)
     names = {d.name for d in new.device}
     plan.removed = [d.name for d in old.device if d.name not in names]
-    old_buses, new_buses = _by_bus(old), _by_bus(new)
+    old_buses, new_buses = by_bus(old), by_bus(new)
     for key, devices in new_buses.items():
         if key not in old_buses:
             plan.start[key] = devices
-        elif old_buses[key] != devices:  # a device added, removed, changed or moved in order
-            plan.reconfigure[key] = devices
+            continue
+        bus_plan = plan_bus(old_buses[key], devices)
+        if not bus_plan.changes_nothing:  # a device added, removed, changed or moved in order
+            plan.reconfigure[key] = bus_plan
     plan.stop = [key for key in old_buses if key not in new_buses]
     return plan
 

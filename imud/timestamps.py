@@ -20,10 +20,11 @@ of a stream without a gap keep within `SLEW` of the period: a new estimate is st
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+
+from imud.chips.api import Stamped
 
 _min, _max = np.minimum.reduce, np.maximum.reduce  # without ndarray.min's Python wrapper
 # the reads' bounds are kept for HULL_SPAN_NS of host time (the fit uses the last half to all of
@@ -116,17 +117,6 @@ def _push(h: list[Point], q: Point, side: float) -> None:
     while len(h) >= 2 and _turn(h[-2], h[-1], q) * side <= 0:
         h.pop()
     h.append(q)
-
-
-@dataclass(slots=True)
-class Stamped:
-    """Stamps of a batch: `seq` of its first sample, chip samples lost right before it, one
-    host-clock instant per sample, and the chip's sample period as fitted so far."""
-
-    first_seq: int
-    lost_before: int
-    t_ns: npt.NDArray[np.int64]
-    period_ns: float = 0.0
 
 
 class SampleClock:

@@ -25,6 +25,7 @@ FLAG_RESYNC = 1 << 1
 HEADER = struct.Struct("<4sBBHQIIII")  # magic, version, kind, name_len, first_seq, count,
 #                                        flags, lost_before, channel mask
 assert HEADER.size == 32
+_STAMP = struct.Struct("<q")
 _KNOWN = sum(CHANNELS)
 _BIT_WIDTH = {c: (bit, width) for c, bit, width in ORDER}
 
@@ -115,6 +116,19 @@ def encode(
         sf = np.ascontiguousarray(sample_flags, dtype="<u4").reshape(n).tobytes()
     head = HEADER.pack(MAGIC, VERSION, kind, len(name), first_seq, n, flags, lost_before, mask)
     return b"".join((head, name, b"\0" * pad, t.tobytes(), sf, *parts))
+
+
+def peek(buf: bytes | memoryview) -> tuple[int, int, int, int]:
+    """(first seq, sample count, first stamp, last stamp) of an encoded batch, read from its
+    header and stamps alone: how the daemon follows each stream without decoding it. Stamps are
+    0 in a batch of no samples."""
+    _, _, _, name_len, first_seq, n, *_ = HEADER.unpack_from(buf)
+    if not n:
+        return first_seq, 0, 0, 0
+    off = HEADER.size + name_len + (-name_len) % 8
+    (first,) = _STAMP.unpack_from(buf, off)
+    (last,) = _STAMP.unpack_from(buf, off + 8 * (n - 1))
+    return first_seq, n, first, last
 
 
 def decode(buf: bytes) -> Batch:

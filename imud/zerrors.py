@@ -17,6 +17,7 @@ from collections.abc import Iterable
 PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream")
 _IP = {"tcp", "udp", "tls", "quic", "ws"}
 EXPECTED = "PROTOCOL/HOST:PORT like 'tcp/127.0.0.1:7447'"
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"  # where the daemon listens, and clients connect, by default
 
 _RUST_AT = re.compile(r"\s+at\s+\S*\.rs:\d+(?::\d+)?\.?")
 _LISTENER = re.compile(r"bound to (\S+?):?\s*\[")

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import json
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from imud.config import DEFAULT_ENDPOINT, ZenohSettings
-from imud.zerrors import ZenohSetupError, clean
+from imud.zerrors import DEFAULT_ENDPOINT, ZenohSetupError, clean
+
+if TYPE_CHECKING:
+    from imud.config import ZenohSettings
 
 
 def daemon_config(s: ZenohSettings) -> zenoh.Config:

@@ -8,13 +8,13 @@ from typing import Any
 
 import numpy as np
 
-from imud.buses.connect import connect
 from imud.channels import Channel
 from imud.clock import VirtualClock
 from imud.config import parse_config
 from imud.device import DeviceRunner
 from imud.sim.i2c import SimI2CBus
 from imud.wire import Batch, decode
+from imud.wiring import connect
 
 
 def free_port() -> int:
@@ -116,3 +116,13 @@ def run_in_process(daemon: Any, drive: Any) -> None:
         t.join()
         sys.setswitchinterval(switch)
         gc.unfreeze()
+
+
+def in_process_runners(daemon: Any) -> list[Any]:
+    """The device runners of a daemon whose bus workers run in-process (`bus_processes =
+    false`), as they are now (a worker not yet started has none)."""
+    out: list[Any] = []
+    for link in daemon.links:
+        worker = getattr(link.transport, "worker", None)
+        out.extend(worker.runners if worker is not None else [])
+    return out

@@ -174,7 +174,7 @@ def test_a_bad_checksum_is_a_counted_bus_error_and_never_published() -> None:
         chip.poll(drv)
     with pytest.raises(BusError, match="all ones"):
         chip.poll(drv)
-    assert drv.counters.bad_transfers == 2 and drv.chip_status()["bad_checksums"] == 2
+    assert drv.counters.bad_transfers == 2 and drv.counters.chip["checksum_errors"] == 2
     b = chip.poll(drv)  # counter 8 after 6: sample 7 (the bad frame's) is lost, and counted
     assert b.n == 1 and isinstance(b.timing, FifoRead) and b.timing.resync
     assert drv.chip_status()["samples_skipped"] == 1

@@ -123,11 +123,12 @@ def test_bus_process_imports_neither_zenoh_nor_anyio(tmp_path: Path) -> None:
     code = (
         "import sys, imud.buschild as c\n"
         "from imud.config import load_config\n"
-        "from imud.busworker import build_workers\n"
+        "from imud.busworker import build_worker\n"
         "from imud.clock import MonotonicClock\n"
         f"cfg = load_config({str(cfg)!r})\n"
-        "w = build_workers(cfg, MonotonicClock(), 0, lambda *a: (lambda p: None))\n"
-        "w[0].run_once()\n"
+        "d = cfg.device[0]\n"
+        "w = build_worker(d.bus.key, [d], MonotonicClock(), 0, lambda *a: (lambda p: None))\n"
+        "w.run_once()\n"
         "print(sorted(m for m in sys.modules if m.split('.')[0] in ('zenoh', 'anyio')))\n"
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)

@@ -12,13 +12,14 @@ from typing import Any
 
 import pytest
 
-from imud.buses.connect import connect
 from imud.busworker import BusWorker, connector
-from imud.chips.api import DeviceBase, Driver, RawBatch, SimChip
+from imud.chips.api import DeviceBase, Driver, RawBatch
 from imud.clock import VirtualClock
 from imud.config import parse_config
 from imud.device import DeviceRunner
+from imud.sim.api import SimChip
 from imud.sim.i2c import SimI2CBus
+from imud.wiring import connect
 
 
 def devices(*names: str) -> list[DeviceBase]:
@@ -108,7 +109,7 @@ def test_poll_lateness_is_measured_after_a_bus_recovered() -> None:
         w.run_once()
     clock.advance(r.next_due_ns - clock.now_ns() + 3_000_000)  # the worker wakes 3 ms late
     assert w.run_once() == 0
-    assert r.status()["poll_late_max_ms"] == pytest.approx(3.0)
+    assert r.status().poll_late_max_ms == pytest.approx(3.0)
 
 
 def test_a_bus_that_opens_with_an_unexpected_error_is_retried() -> None:
@@ -125,10 +126,10 @@ def test_a_bus_that_opens_with_an_unexpected_error_is_retried() -> None:
 
     w, out = worker([cfg], clock, opener)
     run(w, clock, 0.1)
-    st = w.runners[0].status()
+    st = w.runners[0].status().to_json()
     assert st["state"] == "error" and "RuntimeError: adapter firmware says no" in st["last_error"]
     run(w, clock, 5.0)
-    assert w.runners[0].status()["unexpected_errors"] == 2
+    assert w.runners[0].status().unexpected_errors == 2
     assert w.runners[0].state == "running" and out["a"]
 
 
@@ -192,7 +193,7 @@ def test_a_driver_raising_value_error_in_start_is_retried_and_logged_once(
     w, _ = worker([a, b], clock, connectors=conns)
     with caplog.at_level(logging.ERROR, logger="imud.device"):
         run(w, clock, 6.0)
-    st = w.runners[0].status()
+    st = w.runners[0].status().to_json()
     assert st["unexpected_errors"] == 3
     assert st["state"] == "running"  # the fourth start worked
     assert "ValueError: chip answered 0x5a" in (st["last_error"] or "")
@@ -210,7 +211,7 @@ def test_a_driver_raising_in_read_is_counted_and_the_stream_goes_on() -> None:
     ]
     w, out = worker([a, b], clock, connectors=conns)
     run(w, clock, 3.0)
-    st = w.runners[0].status()
+    st = w.runners[0].status().to_json()
     assert st["unexpected_errors"] == 3 and st["state"] == "running"
     assert st["restarts"] == 0  # three failures, never more than ten in a row
     # the FIFO kept the samples of the failed reads: nothing is lost, the stream is seamless
@@ -227,7 +228,7 @@ def test_eleven_failed_reads_in_a_row_reinitialise_the_chip() -> None:
     conns = [flaky_connector(a, clock, exc=KeyError("x"), reads=frozenset(range(5, 16)))]
     w, _ = worker([a], clock, connectors=conns)
     run(w, clock, 4.0)
-    st = w.runners[0].status()
+    st = w.runners[0].status().to_json()
     assert st["unexpected_errors"] == 11
     assert st["restarts"] == 1 and st["state"] == "running"
 
@@ -251,5 +252,5 @@ def test_a_connect_raising_a_type_error_is_retried_while_the_bus_mate_streams() 
     )
     run(w, clock, 4.0)
     assert calls == 3 and w.runners[0].state == "running"
-    assert w.runners[0].status()["unexpected_errors"] == 2
+    assert w.runners[0].status().unexpected_errors == 2
     assert w.runners[1].samples > 2000

@@ -107,7 +107,7 @@ def test_raw_stream_carries_the_uncorrected_samples_only_while_wanted(tmp_path: 
     ca = np.concatenate([c.accel for c in corrected]).astype(np.float64)
     np.testing.assert_allclose((ra - bias) / s, ca, atol=1e-5)  # float32 on the wire
     assert len(raw_out) == len(raw)  # nothing after want_raw(False)
-    assert rig.runner.status()["raw_subscribed"] is False
+    assert rig.runner.status().raw_subscribed is False
 
 
 def test_temperature_outside_the_span_is_flagged_and_counted(tmp_path: Path) -> None:
@@ -124,7 +124,7 @@ def test_temperature_outside_the_span_is_flagged_and_counted(tmp_path: Path) -> 
     meas = concat(rig.batches())
     flag = int(SampleFlag.TEMPERATURE_OUTSIDE_CALIBRATION)
     assert ((meas["flags"] & flag) != 0).all()
-    assert rig.runner.status()["calibration_outside_span"] == len(meas["seq"])
+    assert rig.runner.status().calibration_outside_span == len(meas["seq"])
     # clamped at 30 C: the term is 1e-3 * (30 - 40) = -0.01 rad/s, so x reads 0.01 rad/s high
     truth = concat(rig.truth_batches())
     i = match_truth(meas, truth)
@@ -136,15 +136,15 @@ def test_the_watcher_loads_changes_and_reports_a_bad_file(tmp_path: Path) -> Non
     rig = make_rig({**DEVICE, "calibration": str(path)}, SIM)
     w = CalibrationWatcher([rig.runner])
     w.check()
-    st = rig.runner.status()
+    st = rig.runner.status().to_json()
     assert st["calibration"] is None and "does not exist" in st["calibration_error"]
     write(path, correcting_file())
     w.check()
-    st = rig.runner.status()
+    st = rig.runner.status().to_json()
     assert st["calibration"] == str(path) and st["calibration_error"] is None
     path.write_text("[accel]\nmatrix = [[1.0, 0, 0], [0, 1.0, 0], [1.0, 1.0, 0.0]]\n")
     w.check()
     rig.run(0.3)
-    st = rig.runner.status()
+    st = rig.runner.status().to_json()
     assert st["calibration"] is None and "singular" in st["calibration_error"]
     assert not any(b.flags & FLAG_CALIBRATED for b in rig.batches())  # never garbage

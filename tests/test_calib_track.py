@@ -15,12 +15,13 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from imud.calib.track import GyroBiasTracker, GyroBiasTracking, TrackState
+from imud.calib.track import GyroBiasTracker, TrackState
 from imud.channels import Channel
 from imud.cli.status_view import status_view
 from imud.config import parse_config
 from imud.errors import ConfigError
 from imud.pipeline import track
+from imud.settings import GyroBiasTracking
 from tests.helpers import concat, make_rig
 
 G = 9.80665
@@ -210,10 +211,10 @@ TRACKED = {"enabled": True, "window_s": 0.5, "time_constant_s": 3.0, "confirm_s"
 def test_the_runner_tracks_a_simulated_still_mpu6050_and_reports_it() -> None:
     sim = {"seed": 4, "motion": {"kind": "still"}, "errors": {"gyro_bias_dps": list(SIM_BIAS_DPS)}}
     rig = make_rig({"odr_hz": 200, "dlpf_hz": 42, "gyro_bias_tracking": TRACKED}, sim)
-    st = rig.runner.status()["gyro_bias_tracking"]
+    st = rig.runner.status().gyro_bias_tracking
     assert st["state"] == TrackState.LEARNING and st["windows"] == 0  # before anything ran
     rig.run(30.0)
-    st = rig.runner.status()["gyro_bias_tracking"]
+    st = rig.runner.status().gyro_bias_tracking
     assert st["state"] == TrackState.STILL and st["learned_windows"] > 20
     want = np.radians(SIM_BIAS_DPS)
     # 0.02 deg/s: ~10x the average's noise at this DLPF, 1/10 of the smallest bias
@@ -224,19 +225,20 @@ def test_the_runner_tracks_a_simulated_still_mpu6050_and_reports_it() -> None:
     assert np.all(np.abs(last.mean(axis=0)) < math.radians(0.02))
     # shown in `imud status`
     console = Console(width=200, record=True)
-    for r in status_view({"devices": [rig.runner.status()]}, "tcp/127.0.0.1:7447", console):
+    st = rig.runner.status().to_json()
+    for r in status_view({"devices": [st]}, "tcp/127.0.0.1:7447", console):
         console.print(r)
     text = console.export_text()
     assert "t0 gyro bias tracking: still" in text
     # a new calibration resets what was learned relative to the old one
     rig.runner.set_calibration(None, None)
-    assert rig.runner.status()["gyro_bias_tracking"]["bias_rad_s"] == [0.0, 0.0, 0.0]
+    assert rig.runner.status().gyro_bias_tracking["bias_rad_s"] == [0.0, 0.0, 0.0]
 
 
 def test_tracking_is_absent_from_status_when_off() -> None:
     rig = make_rig({"odr_hz": 200}, {"motion": {"kind": "still"}})
     rig.run(0.5)
-    assert rig.runner.status()["gyro_bias_tracking"] is None
+    assert rig.runner.status().gyro_bias_tracking is None
 
 
 def test_long_run_ratio_sees_the_filter_that_correlates_the_noise() -> None:

@@ -13,8 +13,9 @@ from pathlib import Path
 import pytest
 
 from imud.buses.models import SimBus
+from imud.calib.watch import calibration_problems
 from imud.chips.mpu6050.config import Mpu6050Config
-from imud.config import ImudConfig, calibration_problems, load_config
+from imud.config import ImudConfig, load_config
 from imud.errors import ConfigError
 
 REPO = Path(__file__).resolve().parent.parent

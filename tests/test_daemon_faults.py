@@ -289,6 +289,6 @@ def test_icm_a_lost_bank_select_is_not_a_chip_reset(to_bank0: bool) -> None:
             if not armed[0]:
                 break
         rig.run(0.2)  # the polls after it
-    st = rig.runner.status()
+    st = rig.runner.status().to_json()
     assert len(lost) == 6  # the test did what it says
     assert (st["resets"], st["restarts"], st["lost_samples"]) == (0, 0, 0), st

@@ -84,12 +84,13 @@ def test_two_stim300s_through_the_daemon(tmp_path: Path) -> None:
     temp = np.concatenate([b.channels[Channel.TEMPERATURE] for b in clean])
     assert float(temp.mean()) == pytest.approx(25.0, abs=0.5)
     chip = st["clean"]["chip_status"]
-    assert chip["datagram"] == "0xA7 rate_acc_incl_temp" and chip["crc_errors"] == 0
+    assert chip["datagram"] == "0xA7 rate_acc_incl_temp"
+    assert st["clean"]["chip_counters"] == {"crc_errors": 0}
 
     dmg = st["damaged"]["chip_status"]
     assert set(by["damaged"][0].channels) == {Channel.ACCEL, Channel.GYRO}
-    assert dmg["crc_errors"] > 0 and dmg["resyncs"] > 0 and dmg["skipped_bytes"] > 0
+    assert dmg["resyncs"] > 0 and dmg["skipped_bytes"] > 0
     # by kind in the device's status: every corrupt datagram was caught by its CRC
-    assert st["damaged"]["crc_errors"] == st["damaged"]["garbled_transfers"] == dmg["crc_errors"]
-    assert st["damaged"]["checksum_errors"] == 0
+    crc = st["damaged"]["chip_counters"]["crc_errors"]
+    assert crc > 0 and crc == st["damaged"]["garbled_transfers"]
     assert st["damaged"]["lost_samples"] > 0

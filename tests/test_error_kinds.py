@@ -34,7 +34,7 @@ def test_a_nak_prone_bus_counts_its_naks_as_such() -> None:
     # the simulated I2C bus NAKs a fraction of transfers (errno EREMOTEIO, as i2c-dev does)
     rig = make_rig({"odr_hz": 200}, {"motion": {"kind": "still"}, "nak_rate": 0.02})
     rig.run(5.0)
-    st = rig.runner.status()
+    st = rig.runner.status().to_json()
     assert st["bus_errors"] > 0
     assert st["bus_errors_nak"] == st["bus_errors"]
     assert st["bus_errors_eio"] == st["bus_errors_timeout"] == st["bus_errors_other"] == 0

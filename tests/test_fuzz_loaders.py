@@ -31,8 +31,9 @@ from imud.calib.file import (
     parse_calibration,
     to_toml,
 )
+from imud.calib.watch import calibration_problems
 from imud.channels import Channel
-from imud.config import ImudConfig, calibration_problems, load_config, parse_config
+from imud.config import ImudConfig, load_config, parse_config
 from imud.errors import ConfigError
 from tests.test_fuzz_decoders import fuzz
 

@@ -28,7 +28,7 @@ CHIPS: list[tuple[str, dict[str, Any]]] = [
 def test_naks_on_i2c_lose_no_sample(name: str, device: dict[str, Any], nak_rate: float) -> None:
     rig = make_rig(device, {"motion": {"kind": "still"}, "nak_rate": nak_rate, "seed": 3})
     rig.run(10.0)
-    st = rig.runner.status()
+    st = rig.runner.status().to_json()
     assert st["bus_errors_nak"] > 0, st  # NAKs happened, and were counted as such
     assert st["lost_samples"] == 0 and st["fifo_overflows"] == 0
     seq = concat(rig.batches())["seq"]

@@ -10,6 +10,7 @@ hears RELOADING=1 (with MONOTONIC_USEC) then READY=1.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import threading
@@ -24,7 +25,7 @@ import zenoh
 
 import imud.client as ic
 from imud.config import parse_config
-from imud.reload import ConfigFile, plan_reload
+from imud.reload import Action, BusPlan, ConfigFile, plan_reload
 from tests.daemon_fixture import DaemonProc
 
 # three slow MPU6050s (a FIFO of 1024 bytes, 12 per sample: 85 samples = 1.7 s at 50 Hz, so a
@@ -79,9 +80,24 @@ def test_plan_changed_added_removed() -> None:
     assert p.changed == ["b"] and p.added == ["d"] and p.removed == ["c"]
     assert p.unchanged == ["a"]
     # bus s0 keeps a and restarts b; s1 loses c and gains d; nothing starts or stops whole
-    assert [d.name for d in p.reconfigure["sim:s0"]] == ["a", "b"]
-    assert [d.name for d in p.reconfigure["sim:s1"]] == ["d"]
+    s0, s1 = p.reconfigure["sim:s0"], p.reconfigure["sim:s1"]
+    assert [(s.device.name, s.action, s.was) for s in s0.slots] == [
+        ("a", Action.KEEP, 0),
+        ("b", Action.RESTART, 1),
+    ]
+    assert not s0.removed
+    assert [(s.device.name, s.action, s.was) for s in s1.slots] == [("d", Action.START, None)]
+    assert s1.removed == [0]  # c
     assert not p.start and not p.stop
+
+
+def test_a_bus_plan_survives_its_trip_to_the_worker() -> None:
+    """The daemon sends the plan as JSON; the worker rebuilds it over the new config's devices
+    on its bus and applies it by index: the same plan on both sides."""
+    new = cfg("a", "b", "d", b_odr=100)
+    p = plan_reload(cfg("a", "b", "c"), new).reconfigure["sim:s0"]
+    back = BusPlan.from_json(json.loads(json.dumps(p.to_json())), [d for d in new.device][:2])
+    assert back == p
 
 
 def test_plan_buses_start_and_stop() -> None:
@@ -270,7 +286,7 @@ def test_reload_in_thread_mode(tmp_path: Path) -> None:
     process, where the runners themselves can be looked at."""
     from imud.config import load_config
     from imud.daemon import Daemon
-    from tests.helpers import free_port, run_in_process
+    from tests.helpers import free_port, in_process_runners, run_in_process
 
     path = tmp_path / "imud.toml"
     head = f'[daemon]\nbus_processes = false\n[zenoh]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n'
@@ -279,19 +295,22 @@ def test_reload_in_thread_mode(tmp_path: Path) -> None:
     seen: dict[str, Any] = {}
 
     def runner(name: str) -> Any:
-        return next((r for r in daemon.runners if r.cfg.name == name), None)
+        return next((r for r in in_process_runners(daemon) if r.cfg.name == name), None)
 
     def drive() -> None:
         try:
-            wait_for("a, b, c running", lambda: len(daemon.runners) == 3 and runner("b").samples)
+            wait_for(
+                "a, b, c running",
+                lambda: len(in_process_runners(daemon)) == 3 and runner("b").samples,
+            )
             seen["a"], seen["b"] = runner("a"), runner("b")
             path.write_text(head + body("a", "b", "e", b_odr=100))  # c out, e on a new bus
             daemon.request_reload()
             wait_for("the reload", lambda: daemon.reloads == 1)
             wait_for("b restarted and e running", lambda: runner("e") and runner("e").samples)
             wait_for("b at 100 Hz", lambda: runner("b").samples > 20)
-            seen["after"] = {r.cfg.name: r for r in daemon.runners}
-            seen["buses"] = sorted(w.key for w in daemon.workers)
+            seen["after"] = {r.cfg.name: r for r in in_process_runners(daemon)}
+            seen["buses"] = sorted(w.key for w in daemon.links)
             seen["status"] = daemon.status()
         finally:
             daemon.request_stop()

@@ -33,7 +33,7 @@ import imud.sim.pty
 from imud.config import load_config
 from imud.daemon import Daemon
 from imud.sim.settings import SerialFaults
-from tests.helpers import free_port, run_in_process
+from tests.helpers import free_port, in_process_runners, run_in_process
 from tests.streams import Stream, mark
 from tests.test_stim300_sim import rig as stim_rig
 
@@ -89,14 +89,15 @@ def test_serial_damage_through_the_daemon(tmp_path: Path, monkeypatch: pytest.Mo
             with ic.open_session(endpoint) as s:
                 streams = {n: Stream(s, n) for n in ("stim", "bno")}
                 while time.monotonic() < deadline and not (
-                    all(r.state == "running" for r in daemon.runners)
+                    len(in_process_runners(daemon)) == 2
+                    and all(r.state == "running" for r in in_process_runners(daemon))
                     and all(st.batches for st in streams.values())
                 ):
                     time.sleep(0.1)
                     for st in streams.values():
                         st.drain()
                 time.sleep(1.0)  # past the STIM300's 0.7 s start-up
-                runners: dict[str, Any] = {r.cfg.name: r for r in daemon.runners}  # threads
+                runners: dict[str, Any] = {r.cfg.name: r for r in in_process_runners(daemon)}
                 stim, bno = runners["stim"].sim, runners["bno"].sim.dies[0]
                 rates = stim.faults, bno.faults
                 stim.faults = bno.faults = SerialFaults()  # clean: settle the counts
@@ -135,7 +136,7 @@ def test_serial_damage_through_the_daemon(tmp_path: Path, monkeypatch: pytest.Mo
     lost = b1["stim"]["lost_samples"] - b0["stim"]["lost_samples"]
     # the window had damage
     assert damaged > 10 and b1["stim_garbage"] > b0["stim_garbage"], (damaged, b0, b1)
-    crc = b1["stim"]["chip_status"]["crc_errors"] - b0["stim"]["chip_status"]["crc_errors"]
+    crc = b1["stim"]["chip_counters"]["crc_errors"] - b0["stim"]["chip_counters"]["crc_errors"]
     # each CRC failure is a damaged datagram, or a garbage burst that began with the datagram's
     # identifier where a datagram was due (on the wire the two look alike: ~1 in 256 bursts)
     like = b1["stim_garbage_like"] - b0["stim_garbage_like"]
@@ -176,7 +177,7 @@ def test_late_read_after_a_damaged_datagram_counts_only_the_damage(late_ms: int)
         runner.step()
         clock.advance(max(1, runner.next_due_ns - clock.now_ns()))
     assert sim.damaged > 10
-    assert runner.status()["lost_samples"] == sim.damaged
+    assert runner.status().lost_samples == sim.damaged
 
 
 def _settle(runner: Any) -> None:
@@ -195,7 +196,8 @@ def _settle(runner: Any) -> None:
 def _snapshot(
     daemon: Daemon, stim: Any, bno: Any, links: list[imud.sim.pty.PtyLink]
 ) -> dict[str, Any]:
-    devs = {d["name"]: d for d in daemon.status()["devices"]}
+    # from the runners themselves: the daemon's status is their last report, up to 0.2 s old
+    devs = {r.cfg.name: r.status().to_json() for r in in_process_runners(daemon)}
     uart = devs["bno"]["chip_status"]["uart"]
     return {
         **devs,

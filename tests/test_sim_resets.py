@@ -21,13 +21,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from imud.buses.connect import connect
 from imud.clock import VirtualClock
 from imud.config import parse_config
 from imud.device import DeviceRunner
 from imud.sim.filters import FilteredChip
 from imud.sim.i2c import SimI2CBus
 from imud.wire import decode
+from imud.wiring import connect
 from tests.helpers import concat, match_truth
 from tests.test_stim300_sim import rig as stim_rig
 from tests.test_stim300_sim import run as stim_run
@@ -151,7 +151,7 @@ def test_a_chip_that_resets_itself_is_found_within_100_ms_and_streams_again(
     # found once, within 100 ms, and said so
     assert len(bus.detected_ns) == 1
     assert 0 <= bus.detected_ns[0] - reset_ns <= 100_000_000, bus.detected_ns[0] - reset_ns
-    st = dut.status()
+    st = dut.status().to_json()
     assert st["resets"] == 1 and st["state"] == "running"
     assert "reset" in bus.detected[0], bus.detected
     # streams again within 1 s of the chip answering again
@@ -162,7 +162,7 @@ def test_a_chip_that_resets_itself_is_found_within_100_ms_and_streams_again(
     back_ns = reset_ns + int(SILENT_S.get(chip, 0.03) * 1e9)
     assert m["t_ns"][j + 1] < back_ns + 1_000_000_000
     # the neighbour on the bus lost nothing
-    n = nb.status()
+    n = nb.status().to_json()
     assert n["lost_samples"] == 0 and n["resets"] == 0 and n["state"] == "running"
     seq = concat([decode(b) for b in bus.out[1]])["seq"]
     assert np.all(np.diff(seq) == 1)
@@ -189,7 +189,7 @@ def test_a_stim300_that_resets_itself_restarts_its_stream() -> None:
 
     runner.step = watched  # type: ignore[method-assign]
     stim_run(clock, runner, 2.5)
-    st = runner.status()
+    st = runner.status().to_json()
     assert sim.self_resets == 1 and st["resets"] == 1 and st["state"] == "running"
     assert len(detected) == 1 and 0 <= detected[0] - (t0 + 1_000_000_000) <= 100_000_000
     assert "start-up status bit" in str(st["last_error"])
@@ -231,9 +231,9 @@ def test_garbage_in_the_identity_register_fails_the_start_naming_it_then_runs(
     assert all(e.startswith("start failed: ") for e in errors), errors
     assert re.search(IDENTITY[chip], errors[0]), errors[0]
     # the runner retried (backoff capped at 1 s) and the device runs after the window
-    st = dut.status()
+    st = dut.status().to_json()
     assert st["state"] == "running" and st["samples"] > 0
     m = concat([decode(b) for b in bus.out[0]])
     window_end = bus.t0 + int(window_s * 1e9)
     assert m["t_ns"][0] > window_end - 100_000_000  # nothing before the chip was identified
-    assert nb.status()["lost_samples"] == 0
+    assert nb.status().lost_samples == 0

@@ -8,7 +8,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from imud.timestamps import SampleClock, Stamped
+from imud.chips.api import Stamped
+from imud.timestamps import SampleClock
 
 
 class Grid:

@@ -33,9 +33,6 @@ from imud.chips.api import (
     FifoRead,
     RawBatch,
     RawChannel,
-    SimChip,
-    SimDie,
-    Truth,
 )
 from imud.chips.bits import BitField
 from imud.chips.regplan import RegisterPlan, RegisterSetting
@@ -43,6 +40,7 @@ from imud.clock import Clock
 from imud.config import load_config
 from imud.daemon import Daemon
 from imud.errors import DeviceIdentityError
+from imud.sim.api import SimChip, SimDie, Truth
 from tests.helpers import free_port, run_in_process
 
 

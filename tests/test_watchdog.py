@@ -19,11 +19,12 @@ import pytest
 
 import imud.busworker
 import imud.reload
-from imud.buses.connect import connect
-from imud.chips.api import DeviceBase, Driver, RawBatch, SimChip
+from imud.chips.api import DeviceBase, Driver, RawBatch
 from imud.clock import Clock
 from imud.config import load_config
 from imud.daemon import Daemon
+from imud.sim.api import SimChip
+from imud.wiring import connect
 from tests.helpers import free_port, run_in_process
 
 

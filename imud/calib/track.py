@@ -43,7 +43,8 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from pydantic import BaseModel, ConfigDict, Field
+
+from imud.settings import GyroBiasTracking
 
 F64 = npt.NDArray[np.float64]
 
@@ -51,31 +52,6 @@ CHI2_3DOF_P1E4 = 21.108  # chi-squared quantile, 3 degrees of freedom, upper tai
 LEARN_WINDOWS = 10  # windows seen before a floor is trusted
 MIN_WINDOW = 8  # samples: below this a window's variance says nothing
 FLOOR_DOUBLING_S = 600.0  # the floor may rise by 2x in this time (noise changes with temperature)
-
-
-class GyroBiasTracking(BaseModel):
-    """`[device.gyro_bias_tracking]`: off unless `enabled = true`."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    enabled: bool = False
-    window_s: float = Field(
-        1.0, gt=0.0, le=60.0, description="length of the windows stillness is judged on"
-    )
-    time_constant_s: float = Field(
-        30.0, gt=0.0, description="of the average of still windows' gyro means"
-    )
-    confirm_s: float = Field(
-        10.0,
-        ge=0.0,
-        description="a still window is learned only after this much more of the same still run",
-    )
-    max_rate_rad_s: float = Field(
-        0.035,
-        gt=0.0,
-        description="a still window's mean gyro must be below this (after calibration): a "
-        "steady turn slower than it about the vertical cannot be told from bias",
-    )
 
 
 class TrackState(StrEnum):

@@ -13,12 +13,15 @@ import logging
 import os
 import threading
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from imud import registry
 from imud.calib.file import CalibrationError, load_calibration
 from imud.calib.model import CalibrationModel
 from imud.chips.api import DeviceBase
+
+if TYPE_CHECKING:
+    from imud.config import ImudConfig
 
 log = logging.getLogger("imud.calibration")
 CHECK_EVERY_S = 0.5
@@ -48,6 +51,25 @@ def load_for(cfg: DeviceBase) -> tuple[CalibrationModel | None, str | None]:
         return load_calibration(cfg.calibration, cfg.chip, spec.channels), None
     except CalibrationError as e:
         return None, str(e)
+
+
+def calibration_problems(cfg: ImudConfig) -> tuple[list[str], list[str]]:
+    """(errors, notes): why a device's calibration file cannot be applied, one line per device;
+    a file that does not exist yet is a note (it is written by `imud calibrate`, and picked up
+    when it appears). Not part of `parse_config`: a bad calibration file must not stop the
+    daemon (that device runs uncalibrated and says why in status, the others run normally);
+    `imud check-config` and the daemon's start-up log report them."""
+    errors: list[str] = []
+    notes: list[str] = []
+    for i, d in enumerate(cfg.device):
+        _, error = load_for(d)
+        if error is None:
+            continue
+        line = f"device[{i}] {d.name!r}: calibration: {error}"
+        assert d.calibration is not None
+        missing = not d.calibration.exists() and d.calibration.parent.is_dir()
+        (notes if missing else errors).append(line)
+    return errors, notes
 
 
 class CalibrationWatcher:

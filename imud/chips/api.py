@@ -26,17 +26,17 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar, runtime_checkable
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
 from imud.buses.models import Bus
-from imud.calib.track import GyroBiasTracking
 from imud.channels import Channel
+from imud.settings import GyroBiasTracking
+from imud.sim.api import SimChip
 from imud.sim.settings import SimSettings
-from imud.timestamps import Stamped
 
 if TYPE_CHECKING:
     from typing import TypeAlias
@@ -79,6 +79,11 @@ class DeviceBase(BaseModel):
             return Path(base) / v
         return v
 
+    @property
+    def publishes_truth(self) -> bool:
+        """A simulated device whose simulator's ground truth is published (`sim.truth`)."""
+        return self.sim is not None and self.sim.truth
+
     def die_buses(self) -> list[Bus]:
         """Where each die of the chip is wired, in the order of its spec's `dies`."""
         return [self.bus]
@@ -92,6 +97,17 @@ class ChipCounter:
 
     values: npt.NDArray[np.int64]
     modulo: int
+
+
+@dataclass(slots=True)
+class Stamped:
+    """Stamps of a batch: `seq` of its first sample, chip samples lost right before it, one
+    host-clock instant per sample, and the chip's sample period as fitted so far."""
+
+    first_seq: int
+    lost_before: int
+    t_ns: npt.NDArray[np.int64]
+    period_ns: float = 0.0
 
 
 @dataclass(slots=True)
@@ -138,13 +154,15 @@ class RawBatch:
 
 @dataclass(slots=True)
 class DriverCounters:
+    """What a driver counts, for status. `chip` holds the counters its spec declares
+    (`ChipSpec.counters`), which status shows under their own names."""
+
     fifo_overflows: int = 0
-    fifo_resets: int = 0
-    bad_transfers: int = 0  # read whole but corrupt, all kinds; of them:
-    crc_errors: int = 0  # a frame's CRC failed (STIM300 datagrams)
-    checksum_errors: int = 0  # a frame's checksum failed (ADIS16465 burst)
+    fifo_resets: int = 0  # the driver emptied the FIFO (each start, each overflow)
+    soft_resets: int = 0  # the driver reset the chip (each start)
+    bad_transfers: int = 0  # read whole but found corrupt (CRC, checksum, framing)
     bad_registers: int = 0
-    resets: int = 0
+    chip: dict[str, int] = field(default_factory=dict)
 
 
 class Driver(Protocol):
@@ -178,61 +196,6 @@ class Driver(Protocol):
         """Chip-specific health for `imud status` (JSON-serialisable), e.g. invalid packets."""
 
 
-# --- simulators --------------------------------------------------------------------------------
-@runtime_checkable
-class SimDie(Protocol):
-    """A register-level simulator of one die, attached to a simulated bus."""
-
-    def read(self, register: int, length: int) -> bytes: ...
-
-    def write(self, register: int, data: bytes) -> None: ...
-
-    def spi_select(self) -> bool:
-        """A chip-select edge. False: this transfer only woke the die's SPI interface (a Bosch
-        accel die starts in I2C mode), so it is not answered."""
-
-
-@runtime_checkable
-class SpiFrameDie(Protocol):
-    """A simulated die with its own SPI framing: it sees whole chip-select frames."""
-
-    def spi_frame(self, tx: bytes, speed_hz: int) -> bytes:
-        """One frame (chip select low, `tx` clocked out at `speed_hz`): the bytes on MISO."""
-
-
-@runtime_checkable
-class StreamDie(Protocol):
-    """A simulated serial chip: bytes in from the host, bytes out on its own schedule."""
-
-    def receive(self, data: bytes) -> None:
-        """Bytes the host sent (in order, possibly split anywhere)."""
-
-    def transmit(self, now_ns: int) -> bytes:
-        """Every byte whose last bit has left the chip by `now_ns`, at the link's bit rate."""
-
-    def next_transmit_ns(self) -> int | None:
-        """When the next byte will have been sent (None: nothing scheduled)."""
-
-
-@dataclass(slots=True)
-class Truth:
-    """What a simulated chip really sensed: true sample instants and values before any error."""
-
-    index: int  # the chip's own sample index of the first sample (counts from its power-on)
-    t_ns: npt.NDArray[np.int64]
-    channels: dict[Channel, npt.NDArray[np.float64]]
-
-
-class SimChip(Protocol):
-    """All dies of one simulated chip, in the order of its spec's `dies`, and its truth."""
-
-    @property
-    def dies(self) -> Sequence[SimDie | SpiFrameDie | StreamDie]: ...
-
-    def drain_truth(self) -> Truth | None:
-        """Truth since the last call (None: nothing new, or truth recording is off)."""
-
-
 # --- the registry entry ------------------------------------------------------------------------
 @dataclass(frozen=True, slots=True)
 class Die:
@@ -258,6 +221,8 @@ class ChipSpec(Generic[C]):
     channels: Channel  # what its published stream carries
     dies: tuple[Die, ...] = field(default=(Die("chip"),))
     raw_spi: bool = False  # its own SPI framing: the driver gets the SpiDevLike, not registers
+    # counters of its own (`DriverCounters.chip`), shown by status under these names
+    counters: tuple[str, ...] = ()
 
 
 def register_links(links: Sequence[Link]) -> list[RegisterDevice]:

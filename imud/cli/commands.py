@@ -11,9 +11,9 @@ import json
 import os
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import click
 
@@ -40,7 +40,36 @@ from imud.cli.status_view import cut, status_view
 ECHO_STATUS_TIMEOUT_S = 1.0  # echo's status question: a wrong name must fail within 2 s
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+def _calibrate() -> click.Command:
+    from imud.cli.calibrate import calibrate
+
+    return calibrate
+
+
+def _record() -> click.Command:
+    from imud.cli.record import record
+
+    return record
+
+
+class _Commands(click.Group):
+    """The subcommands, the heavy ones (NumPy, the calibration code) loaded only when they run
+    or show their help: `imud status` imports no more than it uses."""
+
+    lazy: ClassVar[dict[str, Callable[[], click.Command]]] = {
+        "calibrate": _calibrate,
+        "record": _record,
+    }
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted([*super().list_commands(ctx), *self.lazy])
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        load = self.lazy.get(name)
+        return load() if load is not None else super().get_command(ctx, name)
+
+
+@click.group(cls=_Commands, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="imud")
 def main() -> None:
     """imud: IMU acquisition daemon publishing over Eclipse Zenoh."""
@@ -106,7 +135,7 @@ def check_config(file: str, as_json: bool) -> None:
     except ZenohSetupError as e:
         click.echo(f"{file}: invalid config:\n  {e}", err=True)
         sys.exit(EXIT_USAGE)
-    from imud.config import calibration_problems
+    from imud.calib.watch import calibration_problems
 
     problems, notes = calibration_problems(cfg)
     if problems:  # the daemon would run these devices uncalibrated: say so, and fail the check
@@ -270,12 +299,6 @@ def echo(
         finally:
             sub.undeclare()
 
-
-from imud.cli.calibrate import calibrate  # noqa: E402  (registered on `main` below)
-from imud.cli.record import record  # noqa: E402
-
-main.add_command(calibrate)
-main.add_command(record)
 
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -6,13 +6,15 @@ from __future__ import annotations
 import difflib
 import json
 import sys
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import click
 
-from imud.config import DEFAULT_ENDPOINT, ImudConfig
 from imud.errors import ConfigError
-from imud.zerrors import endpoint_problem
+from imud.zerrors import DEFAULT_ENDPOINT, endpoint_problem
+
+if TYPE_CHECKING:
+    from imud.config import ImudConfig
 
 EXIT_NO_DAEMON = 1
 EXIT_USAGE = 2

@@ -8,7 +8,7 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
 from imud.errors import BUS_ERROR_KEYS
-from imud.status import DeviceState
+from imud.status import LABELS, DeviceState
 
 if TYPE_CHECKING:
     from rich.console import Console, RenderableType
@@ -55,19 +55,9 @@ _COLUMNS: dict[str, tuple[Any, bool]] = {
     "calibration": (lambda d: (d["calibration"] or "-").rsplit("/", 1)[-1], False),
 }
 _DROP = ("calibration", "bus", "odr Hz", "overflows", "chip", "temp °C", "bus err", "samples")
-# counters shown below the table when nonzero (and not already a column)
-_NOTES = (
-    ("lost_samples", "lost", "lost"),
-    ("fifo_overflows", "FIFO overflows", "overflows"),
-    ("bus_errors", "bus errors", "bus err"),
-    ("invalid_samples", "invalid samples", None),
-    ("bad_registers", "bad registers", None),
-    ("restarts", "restarts", None),
-    ("resets", "chip resets", None),
-    ("unexpected_errors", "unexpected errors", None),
-    ("publish_dropped", "publish drops", None),
-    ("calibration_outside_span", "samples outside the calibration's temperature span", None),
-)
+# counters that are columns of the table: below it only when their column was dropped
+_COLUMN_OF = {"lost_samples": "lost", "fifo_overflows": "overflows", "bus_errors": "bus err"}
+_KINDS = frozenset(BUS_ERROR_KEYS.values())
 _STATE_STYLE = {DeviceState.RUNNING: "green", DeviceState.ERROR: "red", DeviceState.STOPPED: "dim"}
 
 
@@ -124,17 +114,7 @@ def status_view(st: dict[str, Any], endpoint: str, console: Console) -> list[Ren
         out.append(cut(Text(st["restart_needed"], style="yellow"), width))
     out.append(table)
     for d in devices:
-        parts = [f"{d[k]} {label}" for k, label, col in _NOTES if d.get(k) and col not in cols]
-        kinds = [f"{k.split('_')[-1]} {d[k]}" for k in BUS_ERROR_KEYS.values() if d.get(k)]
-        if kinds:
-            parts.append("bus errors by kind: " + ", ".join(kinds))
-        if d.get("garbled_transfers"):
-            of = [f"{d[k]} {k.split('_')[0].upper() if k == 'crc_errors' else 'checksum'}"
-                  for k in ("crc_errors", "checksum_errors") if d.get(k)]  # fmt: skip
-            parts.append(
-                f"{d['garbled_transfers']} garbled transfers"
-                + (f" ({', '.join(of)})" if of else "")
-            )
+        parts = _counters(d, cols)
         line = ", ".join(parts)
         if d.get("calibration_error"):
             line += ("; " if line else "") + f"uncalibrated: {d['calibration_error']}"
@@ -165,6 +145,22 @@ def status_view(st: dict[str, Any], endpoint: str, console: Console) -> list[Ren
                 line += f"; last error: {b['last_error']}"
             out.append(cut(Text(line), width))
     return out
+
+
+def _counters(d: dict[str, Any], cols: list[str]) -> list[str]:
+    """The nonzero counters not in the table: the status record's own (by their labels), bus
+    errors by kind, then the chip's (`chip_counters`, by their names)."""
+    parts = [
+        f"{d[k]} {label}"
+        for k, label in LABELS.items()
+        if d.get(k) and k not in _KINDS and _COLUMN_OF.get(k) not in cols
+    ]
+    kinds = [f"{LABELS[k]} {d[k]}" for k in sorted(_KINDS) if d.get(k)]
+    if kinds:
+        parts.append("bus errors by kind: " + ", ".join(kinds))
+    chip = (d.get("chip_counters") or {}).items()
+    parts.extend(f"{n} {k.replace('_', ' ')}" for k, n in chip if n)
+    return parts
 
 
 def _tracking_line(tr: dict[str, Any]) -> str:

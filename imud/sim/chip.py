@@ -35,8 +35,8 @@ import numpy as np
 import numpy.typing as npt
 
 from imud.channels import Channel
-from imud.chips.api import SimDie, Truth
 from imud.clock import Clock
+from imud.sim.api import SimDie, Truth
 from imud.sim.physics import ChipFigures, ErrorModel, MotionModel, TemperatureModel
 from imud.sim.settings import SimSettings
 

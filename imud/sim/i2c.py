@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from imud.chips.api import SimDie
+from imud.sim.api import SimDie
 from imud.sim.faults import Fault, TransferFaults
 
 I2C_M_RD = 0x0001

@@ -17,8 +17,8 @@ import select
 import threading
 import tty
 
-from imud.chips.api import StreamDie
 from imud.clock import Clock
+from imud.sim.api import StreamDie
 
 log = logging.getLogger("imud.sim")
 

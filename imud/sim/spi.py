@@ -11,8 +11,8 @@ import threading
 
 import numpy as np
 
-from imud.chips.api import SimDie
 from imud.clock import VirtualClock
+from imud.sim.api import SimDie
 from imud.sim.faults import Fault, TransferFaults
 
 FLOATING = (Fault.NAK, Fault.GARBLE, Fault.GONE)  # SPI has no acknowledge: MISO reads high

@@ -12,7 +12,7 @@ import threading
 
 import numpy as np
 
-from imud.chips.api import SpiFrameDie
+from imud.sim.api import SpiFrameDie
 from imud.sim.faults import Fault, TransferFaults
 from imud.sim.spi import FLOATING, raise_for
 

@@ -135,7 +135,7 @@ class Adis16465Driver:
 
     def __init__(self, cfg: Adis16465Config, spi: SpiDevLike, clock: Clock) -> None:
         self.cfg, self.spi, self.clock = cfg, spi, clock
-        self.counters = DriverCounters()
+        self.counters = DriverCounters(chip={"checksum_errors": 0})
         speed = bus_speed_hz(cfg.bus) or R.MAX_BURST_SCLK_HZ
         self.reg_hz, self.burst_hz = frame_speeds(speed)
         self.nominal_period_ns = 1e9 / cfg.odr_hz
@@ -178,7 +178,6 @@ class Adis16465Driver:
         self.plan = WordPlan(self, register_plan(cfg))
         self._checker = RegisterChecker([self.plan], clock, self.counters)
         self._ready_ns = 0  # perf_counter instant the next frame may start (stall)
-        self.bad_checksums = 0
         self.duplicates = 0
         self.counter_gaps = 0
         self.samples_skipped = 0  # counted from DATA_CNTR steps
@@ -273,7 +272,7 @@ class Adis16465Driver:
                 f"the ADIS16465 does not answer after its software reset: PROD_ID reads "
                 f"0x{pid:04x} {(RESET_WAIT_NS + RESET_POLLS * RESET_POLL_NS) // 1_000_000} ms on"
             )
-        self.counters.resets += 1
+        self.counters.soft_resets += 1
         (rang,) = self.read_words([Reg.RANG_MDL])
         model = d.model_from_rang_mdl(rang)
         if model is None:
@@ -300,8 +299,7 @@ class Adis16465Driver:
     # --- read -------------------------------------------------------------------------------
     def _burst_failed(self, rx: list[int], got: int, sent: int) -> BusError:
         self.counters.bad_transfers += 1
-        self.counters.checksum_errors += 1
-        self.bad_checksums += 1
+        self.counters.chip["checksum_errors"] += 1
         if all(b == 0xFF for b in rx[2:]):
             return BusError(0, "burst read all ones: no answer on MISO")
         return BusError(
@@ -502,7 +500,6 @@ class Adis16465Driver:
         return {
             "model": f"ADIS16465-{self.cfg.model}",
             "gyro_accel_bits": 32 if self.lows else 16,
-            "bad_checksums": self.bad_checksums,
             "duplicate_reads": self.duplicates,
             "counter_gaps": self.counter_gaps,
             "samples_skipped": self.samples_skipped,

@@ -38,8 +38,8 @@ import numpy.typing as npt
 from imud.channels import Channel
 from imud.chips.adis16465 import registers as R
 from imud.chips.adis16465.registers import Register as Reg
-from imud.chips.api import SpiFrameDie, Truth
 from imud.clock import Clock
+from imud.sim.api import SpiFrameDie, Truth
 from imud.sim.chip import TRUTH_KEEP, SampledChip
 from imud.sim.filters import NoiseStream, bartlett_taps, enbw_fir
 from imud.sim.physics import ChipFigures

@@ -7,8 +7,9 @@ from typing import TYPE_CHECKING, cast
 
 from imud.channels import Channel
 from imud.chips.adis16465.config import Adis16465Config
-from imud.chips.api import ChipSpec, Driver, SimChip
+from imud.chips.api import ChipSpec, Driver
 from imud.clock import Clock
+from imud.sim.api import SimChip
 
 if TYPE_CHECKING:
     from imud.buses.spi import SpiDevLike
@@ -45,4 +46,5 @@ SPEC = ChipSpec(
         | Channel.DELTA_VELOCITY
     ),
     raw_spi=True,
+    counters=("checksum_errors",),  # bursts whose checksum failed (of garbled_transfers)
 )

@@ -18,7 +18,7 @@ import numpy as np
 
 from imud.buses.registers import RegisterDevice
 from imud.channels import Channel
-from imud.chips.api import DriverCounters, RawBatch, RawChannel
+from imud.chips.api import DriverCounters, RawBatch, RawChannel, Stamped
 from imud.chips.bits import BitField
 from imud.chips.bmi088 import decode as d
 from imud.chips.bmi088 import registers as R
@@ -27,7 +27,7 @@ from imud.chips.bmi088.pairing import DiePairer
 from imud.chips.regplan import RegisterChecker, RegisterPlan, RegisterSetting
 from imud.clock import Clock
 from imud.errors import BusError, DeviceIdentityError, ErrorKind, error_kind
-from imud.timestamps import SampleClock, Stamped
+from imud.timestamps import SampleClock
 
 A, G = R.AccelRegister, R.GyroRegister
 STARTUP_WAIT_NS = 10_000_000  # first samples after power-up are settling: flushed
@@ -150,7 +150,7 @@ class Bmi088Driver:
         self.gyr.write_u8(G.GYRO_SOFTRESET, R.SOFTRESET_CMD)
         yield R.GYRO_RESET_WAIT_NS  # covers the accel's 1 ms too
         self._identify()  # the reset put the accel back in I2C mode: the dummy read again
-        self.counters.resets += 1
+        self.counters.soft_resets += 1
         self.acc.write_u8(A.ACC_PWR_CONF, R.ACC_PWR_CONF_ACTIVE)
         yield R.ACC_POWER_WAIT_NS
         self.acc.write_u8(A.ACC_PWR_CTRL, R.ACC_PWR_CTRL_ON)

@@ -22,11 +22,11 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from imud.chips.api import SimDie, Truth
 from imud.chips.bmi088 import registers as R
 from imud.chips.bmi088.registers import AccelRegister as A
 from imud.chips.bmi088.registers import GyroRegister as G
 from imud.clock import Clock
+from imud.sim.api import SimDie, Truth
 from imud.sim.chip import Encoded, Measured
 from imud.sim.filters import FilteredChip, SensorFilter, enbw_fir
 from imud.sim.physics import ChipFigures, ErrorModel, quantise

@@ -6,9 +6,10 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from imud.channels import Channel
-from imud.chips.api import ChipSpec, Die, Driver, SimChip, register_links
+from imud.chips.api import ChipSpec, Die, Driver, register_links
 from imud.chips.bmi088.config import Bmi088Config
 from imud.clock import Clock
+from imud.sim.api import SimChip
 
 if TYPE_CHECKING:
     from imud.chips.api import Link

@@ -201,7 +201,7 @@ class Bno055Driver:
         else:
             with contextlib.suppress(BusError):  # the chip may not acknowledge: it resets
                 self.dev.write_u8(P0.SYS_TRIGGER, R.SysTrigger.RST_SYS)
-        self.counters.resets += 1
+        self.counters.soft_resets += 1
         yield R.RESET_WAIT_NS
         yield from self._await_boot()
         self.dev.write_u8(P0.PAGE_ID, 0)

@@ -41,11 +41,11 @@ import numpy as np
 import numpy.typing as npt
 
 from imud.channels import Channel
-from imud.chips.api import SimDie, StreamDie, Truth
 from imud.chips.bno055 import registers as R
 from imud.chips.bno055.registers import Page0 as P0
 from imud.chips.bno055.registers import Page1 as P1
 from imud.clock import Clock
+from imud.sim.api import SimDie, StreamDie, Truth
 from imud.sim.chip import TRUTH_KEEP, SampledChip
 from imud.sim.filters import NoiseStream, enbw_fir
 from imud.sim.physics import (

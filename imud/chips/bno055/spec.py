@@ -9,9 +9,10 @@ from typing import TYPE_CHECKING
 from imud.buses.models import SerialBus, SimBus
 from imud.buses.registers import RegisterDevice
 from imud.channels import Channel
-from imud.chips.api import ChipSpec, Driver, DriverCounters, SimChip
+from imud.chips.api import ChipSpec, Driver, DriverCounters
 from imud.chips.bno055.config import Bno055Config
 from imud.clock import Clock
+from imud.sim.api import SimChip
 
 if TYPE_CHECKING:
     from imud.chips.api import Link

@@ -308,7 +308,7 @@ class Icm42688pDriver:
         if not self.dev.read_u8(R.Bank0.INT_STATUS) & R.IntStatus.RESET_DONE_INT:
             raise DeviceIdentityError("ICM-42688-P did not report RESET_DONE after soft reset")
         self._off_bank0 = False  # the reset selected bank 0
-        self.counters.resets += 1
+        self.counters.soft_resets += 1
         for s in self.plan.settings:  # power on last, once everything is set
             self.plan.write(s)
         yield R.POWER_ON_WAIT_NS  # no register write within 200 us of turning sensors on

@@ -6,9 +6,10 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from imud.channels import Channel
-from imud.chips.api import ChipSpec, Driver, SimChip, register_links
+from imud.chips.api import ChipSpec, Driver, register_links
 from imud.chips.icm42688p.config import Icm42688pConfig
 from imud.clock import Clock
+from imud.sim.api import SimChip
 
 if TYPE_CHECKING:
     from imud.chips.api import Link

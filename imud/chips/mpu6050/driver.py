@@ -153,7 +153,7 @@ class Mpu6050Driver:
             raise DeviceIdentityError(
                 f"MPU6050 still in reset after 100 ms (PWR_MGMT_1=0x{pwr:02x})"
             )
-        self.counters.resets += 1
+        self.counters.soft_resets += 1
         config = [s for s in self.plan.settings if s.register not in _FIFO_REGISTERS]
         self.plan.write(config[0])  # wake up first
         yield R.WAKE_WAIT_NS

@@ -82,7 +82,7 @@ class Stim300Driver:
         span = self.fifo_capacity * self.nominal_period_ns
         self.poll_interval_ns = int(min(POLL_NS, span / 4))
         self.next_poll_ns: int | None = None  # a FIFO: polled at its interval
-        self.counters = DriverCounters()
+        self.counters = DriverCounters(chip={"crc_errors": 0})
         self.step = cfg.counter_step
         baud = port.baudrate
         self.wire_ns = self.lay.size * BITS_PER_CHAR * 1e9 / baud  # a datagram on the line
@@ -224,7 +224,9 @@ class Stim300Driver:
         data = self._read_port()
         t1 = self.clock.now_ns()
         self._take(self.framer.feed(data))
-        self.counters.bad_transfers = self.counters.crc_errors = self.framer.stats.crc_errors
+        self.counters.bad_transfers = self.counters.chip["crc_errors"] = (
+            self.framer.stats.crc_errors
+        )
         # A datagram's sample came its latency field and its time on the wire before its last
         # byte, which was here by t1: the newest sample was latched no later than t1 less the
         # newest datagram's latency and wire time. The next one, not here by t0, was latched
@@ -323,7 +325,6 @@ class Stim300Driver:
         return {
             "datagram": f"0x{self.lay.ident:02X} {self.cfg.datagram}",
             "datagrams": s.datagrams,
-            "crc_errors": s.crc_errors,
             "resyncs": s.resyncs,
             "skipped_bytes": s.skipped_bytes,
             "counter_gaps": self.counter_gaps,

@@ -6,9 +6,10 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from imud.channels import Channel
-from imud.chips.api import ChipSpec, Driver, SimChip
+from imud.chips.api import ChipSpec, Driver
 from imud.chips.stim300.config import Stim300Config
 from imud.clock import Clock
+from imud.sim.api import SimChip
 
 if TYPE_CHECKING:
     from imud.chips.api import Link
@@ -49,4 +50,5 @@ SPEC = ChipSpec(
     make_sim=_sim,
     transports=("serial",),
     channels=Channel.ACCEL | Channel.GYRO | Channel.TEMPERATURE | Channel.INCLINATION,
+    counters=("crc_errors",),  # datagrams whose CRC failed (of garbled_transfers)
 )

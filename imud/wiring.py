@@ -13,17 +13,9 @@ from typing import TYPE_CHECKING, Any
 from imud import registry
 from imud.buses.models import Bus, SerialBus, SimBus, SpiBus
 from imud.buses.registers import register_device
-from imud.chips.api import (
-    ChipSpec,
-    DeviceBase,
-    Die,
-    Driver,
-    SimChip,
-    SimDie,
-    SpiFrameDie,
-    StreamDie,
-)
+from imud.chips.api import ChipSpec, DeviceBase, Die, Driver
 from imud.clock import Clock
+from imud.sim.api import SimChip, SimDie, SpiFrameDie, StreamDie
 
 if TYPE_CHECKING:
     from imud.chips.api import Link
