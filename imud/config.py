@@ -21,7 +21,6 @@ from pydantic import (
 )
 
 from imud import registry
-from imud.buses.models import SimBus
 from imud.chips.api import DeviceBase
 from imud.configerrors import explain
 from imud.errors import ConfigError
@@ -119,18 +118,18 @@ class ImudConfig(BaseModel):
                         f"{slots[slot]!r}"
                     )
                 slots[slot] = d.name
-                kind = bus.transport if isinstance(bus, SimBus) else bus.kind
+                kind = bus.transport
                 if kind not in transports:
                     raise ValueError(
                         f"device[{i}] {d.name!r}: a {d.chip} cannot be on a {kind} bus; "
                         f"it works over: {', '.join(transports)}"
                     )
-            if d.sim is not None and not isinstance(d.bus, SimBus):
+            if d.sim is not None and not d.bus.simulated:
                 raise ValueError(
                     f'device[{i}] {d.name!r}: a [device.sim] table needs bus.kind = "sim" '
                     f"(this device is on {d.bus.kind})"
                 )
-            if isinstance(d.bus, SimBus) and d.sim is None:
+            if d.bus.simulated and d.sim is None:
                 d.sim = _default_sim()
         return self
 

@@ -98,7 +98,7 @@ def connect(d: DeviceBase, shared: Any, clock: Clock) -> tuple[Driver, SimChip |
         raise TypeError(
             f"{spec.name}: the config names {len(buses)} die bus(es), the spec {len(spec.dies)}"
         )
-    sim = spec.make_sim(d, clock) if isinstance(d.bus, SimBus) else None
+    sim = spec.make_sim(d, clock) if d.bus.simulated else None
     sims: list[SimAny | None] = list(sim.dies) if sim is not None else [None] * len(buses)
     if len(sims) != len(buses):
         raise TypeError(f"{spec.name}: its simulator has {len(sims)} dies, the spec {len(buses)}")

@@ -287,7 +287,7 @@ def test_100khz_i2c_boundary(accel: float, gyro: int, kbps: int, fits: bool) -> 
         assert (d.accel_odr_hz, d.odr_hz) == (accel, gyro)
     else:
         msg = only_error(dev)
-        assert f"accel {accel:g} Hz + gyro {gyro} Hz need about {kbps} kbit/s" in msg
+        assert f"accel {accel:g} Hz + gyro {gyro} Hz" in msg and f"needs about {kbps} kbit/s" in msg
         assert "bus.speed_hz" in msg and "100 kHz" in msg
 
 

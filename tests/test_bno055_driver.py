@@ -241,8 +241,8 @@ def test_unit_sel_is_what_linux_writes() -> None:
         ({"axis_remap": "+x+x+z"}, "twice"),
         ({"bus": {"kind": "sim", "transport": "serial", "baud": 9600}}, "115200"),
         ({"bus": {"kind": "i2c", "bus": 1, "address": 0x68}}, "0x28"),
-        # (3 + 46 bytes) * 9 bits * 100 Hz * 1.25 = 55 kHz: Adafruit's 10 kHz fix is too slow
-        ({"bus": {"kind": "i2c", "bus": 1, "address": 0x28, "speed_hz": 10_000}}, "55 kHz"),
+        # (3 + 46 bytes) * 9 bits * 100 Hz * 1.25 = 55.1 kbit/s: Adafruit's 10 kHz fix is too slow
+        ({"bus": {"kind": "i2c", "bus": 1, "address": 0x28, "speed_hz": 10_000}}, "55.1 kbit/s"),
     ],
 )
 def test_the_config_refuses_what_the_chip_cannot_do(fields: dict[str, Any], message: str) -> None:

@@ -1,14 +1,23 @@
-"""The `bus` table of a device: where the chip is wired (or that it is simulated)."""
+"""The `bus` table of a device: where the chip is wired (or that it is simulated).
+
+Every kind says in common what it is to a chip: its `transport` ("i2c", "spi" or "serial": a
+simulated bus is one of these too) and its `clock_hz` (the I2C or SPI clock, the serial bit
+rate), which the config's rate checks use (`imud.buses.budget`).
+"""
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
+
+Transport = Literal["i2c", "spi", "serial"]
 
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
+
+    simulated: ClassVar[bool] = False  # a simulator stands behind it (SimBus)
 
 
 class I2cBus(_Strict):
@@ -16,6 +25,14 @@ class I2cBus(_Strict):
     bus: int | str = Field(description="bus number (1 for /dev/i2c-1) or device path")
     address: int = Field(ge=0x03, le=0x77, description="7-bit I2C address")
     speed_hz: int = Field(400_000, gt=0, description="bus clock, used to check rates")
+
+    @property
+    def transport(self) -> Transport:
+        return "i2c"
+
+    @property
+    def clock_hz(self) -> int:
+        return self.speed_hz
 
     @property
     def key(self) -> str:
@@ -33,6 +50,14 @@ class SpiBus(_Strict):
     speed_hz: int = Field(1_000_000, gt=0)
 
     @property
+    def transport(self) -> Transport:
+        return "spi"
+
+    @property
+    def clock_hz(self) -> int:
+        return self.speed_hz
+
+    @property
     def key(self) -> str:
         """The bus, not the chip select: /dev/spidev0.0 and /dev/spidev0.1 share one worker."""
         return self.path.rsplit(".", 1)[0]
@@ -48,6 +73,10 @@ class SerialBus(_Strict):
     kind: Literal["serial"]
     port: str = Field(description="device path, e.g. /dev/ttyUSB0 or /dev/serial/by-id/...")
     baud: int = Field(115_200, gt=0)
+
+    @property
+    def transport(self) -> Transport:
+        return "serial"
 
     @property
     def clock_hz(self) -> int:
@@ -69,9 +98,10 @@ class SimBus(_Strict):
     behind a pseudo-terminal of its own at `baud`. `speed_hz` (I2C, SPI) and `baud` (serial)
     are what the config checks rates against, as for a real bus."""
 
+    simulated: ClassVar[bool] = True
     kind: Literal["sim"]
     bus: str = "sim0"
-    transport: Literal["i2c", "spi", "serial"] = "i2c"
+    transport: Transport = "i2c"
     address: int = Field(0x68, ge=0x03, le=0x77)
     cs: int = Field(0, ge=0, le=15)
     speed_hz: int | None = Field(None, gt=0, description="default: 400 kHz I2C, 10 MHz SPI")

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+
+if TYPE_CHECKING:
+    from imud.buses.models import Bus
 
 
 @runtime_checkable
@@ -16,14 +19,14 @@ class RegisterDevice(Protocol):
     def write_u8(self, register: int, value: int) -> None: ...
 
 
-def register_device(bus_cfg: object, transport: Any, spi_dummy_bytes: int = 0) -> RegisterDevice:
+def register_device(bus_cfg: Bus, transport: Any, spi_dummy_bytes: int = 0) -> RegisterDevice:
     """Wrap an open transport (an `smbus2.SMBus`-like or a `spidev.SpiDev`-like) for the device
     the bus config names: I2C at its address, or SPI on its chip select."""
     from imud.buses.i2c import I2CDevice
-    from imud.buses.models import I2cBus, SimBus, SpiBus
+    from imud.buses.models import I2cBus, SimBus
     from imud.buses.spi import SpiDevice
 
-    if isinstance(bus_cfg, SpiBus) or (isinstance(bus_cfg, SimBus) and bus_cfg.transport == "spi"):
+    if bus_cfg.transport == "spi":
         return SpiDevice(transport, spi_dummy_bytes)
     assert isinstance(bus_cfg, I2cBus | SimBus)
     return I2CDevice(transport, bus_cfg.address)

@@ -7,7 +7,7 @@ from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
-from imud.buses.models import Bus, SimBus, SpiBus
+from imud.buses.models import Bus, SpiBus
 from imud.chips.adis16465.decode import sample_frames
 from imud.chips.adis16465.registers import (
     BURST_FRAME_BYTES,
@@ -35,11 +35,8 @@ def odr_of(dec_rate: int) -> float:
 
 
 def bus_speed_hz(bus: Bus) -> int | None:
-    if isinstance(bus, SimBus):
-        return bus.clock_hz
-    if isinstance(bus, SpiBus):
-        return bus.speed_hz
-    return None
+    """The SPI clock; None on another transport (the config's transport check rejects it)."""
+    return bus.clock_hz if bus.transport == "spi" else None
 
 
 def frame_speeds(speed_hz: int) -> tuple[int, int]:

@@ -9,7 +9,8 @@ from typing import Literal
 
 from pydantic import Field, ValidationInfo, field_validator
 
-from imud.buses.models import I2cBus, SerialBus, SimBus
+from imud.buses import budget
+from imud.buses.models import Bus, I2cBus
 from imud.chips.api import DeviceBase
 from imud.chips.bno055.registers import (
     DATA_BURST_LEN,
@@ -21,7 +22,8 @@ from imud.chips.bno055.registers import (
 
 STATE_DIRECTORY = Path("/var/lib/imud")  # the systemd unit's StateDirectory
 # address + register + address + data bytes, 9 bits each, 100 times a second, 25 % overhead
-I2C_MIN_HZ = round((3 + DATA_BURST_LEN) * 9 * FUSION_RATE_HZ * 1.25 / 1000) * 1000
+# a full read each sample: address + register + address, then the data bytes
+READ_BYTES_PER_S = (3 + DATA_BURST_LEN) * FUSION_RATE_HZ
 
 Mode = Literal["ndof", "ndof_fmc_off", "imu", "amg"]
 MODES: dict[str, OprMode] = {
@@ -107,28 +109,30 @@ class Bno055Config(DeviceBase):
 
     @field_validator("bus")
     @classmethod
-    def _bus(cls, v: object) -> object:
-        if isinstance(v, SerialBus | SimBus) and (
-            isinstance(v, SerialBus) or v.transport == "serial"
-        ):
-            if v.baud != UART_BAUD:
+    def _bus(cls, v: Bus) -> Bus:
+        if v.transport == "serial":
+            if v.clock_hz != UART_BAUD:
                 raise ValueError(
                     f"the BNO055's UART runs at {UART_BAUD} baud, 8N1 only (datasheet §4.7); "
-                    f"bus.baud is {v.baud}"
+                    f"bus.baud is {v.clock_hz}"
                 )
-        elif isinstance(v, I2cBus) and v.address not in I2C_ADDRESSES:
+            return v
+        if isinstance(v, I2cBus) and v.address not in I2C_ADDRESSES:
             raise ValueError(
                 f"the BNO055 answers at 0x28 (COM3 low) or 0x29 (COM3 high), not "
                 f"0x{v.address:02x}: set bus.address"
             )
-        speed = v.speed_hz if isinstance(v, I2cBus) else None
-        if speed is not None and speed < I2C_MIN_HZ:
-            raise ValueError(
-                f"a {DATA_BURST_LEN}-byte burst at 100 Hz needs an I2C clock of at least "
-                f"{I2C_MIN_HZ // 1000} kHz (9 bits a byte, 25 % overhead, before the chip's clock "
-                f"stretching); bus.speed_hz is {speed}. On a Raspberry Pi, the 10 kHz "
-                "clock-stretching workaround cannot carry it: use the i2c-gpio overlay or the UART"
-            )
+        why = budget.problem(
+            v.transport,
+            v.clock_hz,
+            READ_BYTES_PER_S,
+            f"a {DATA_BURST_LEN}-byte burst at {FUSION_RATE_HZ:g} Hz (before the chip's clock "
+            "stretching)",
+            "on a Raspberry Pi the 10 kHz clock-stretching workaround cannot carry it: use the "
+            "i2c-gpio overlay or the UART",
+        )
+        if why:
+            raise ValueError(why)
         return v
 
     @property

@@ -6,7 +6,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from imud.buses.models import SerialBus, SimBus
 from imud.buses.registers import RegisterDevice
 from imud.channels import Channel
 from imud.chips.api import ChipSpec, Driver, DriverCounters
@@ -35,8 +34,7 @@ def _sim(cfg: Bno055Config, clock: Clock) -> SimChip:
     from imud.sim.settings import SimSettings
 
     bus = cfg.bus
-    serial = isinstance(bus, SerialBus) or (isinstance(bus, SimBus) and bus.transport == "serial")
-    baud = bus.baud if isinstance(bus, SerialBus | SimBus) and serial else None
+    baud = bus.clock_hz if bus.transport == "serial" else None
     return Bno055Sim(cfg.sim or SimSettings(), clock, serial_baud=baud)
 
 

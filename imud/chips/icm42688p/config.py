@@ -6,7 +6,8 @@ from typing import Literal
 
 from pydantic import Field, ValidationInfo, field_validator
 
-from imud.buses.models import I2cBus, SimBus
+from imud.buses import budget
+from imud.buses.models import Bus
 from imud.chips.api import DeviceBase
 from imud.chips.icm42688p.registers import (
     AAF_DEFAULT_ACCEL_HZ,
@@ -19,20 +20,15 @@ from imud.chips.icm42688p.registers import (
     PACKET4_BYTES,
 )
 
-I2C_BITS_PER_BYTE = 9  # 8 data + ACK
-SPI_BITS_PER_BYTE = 8
-BUS_OVERHEAD = 1.25  # addressing, status/count reads, gaps between transfers
-
 UiFilter = Literal[
     "odr/2", "odr/4", "odr/5", "odr/8", "odr/10", "odr/16", "odr/20", "odr/40",
     "low_latency", "low_latency_8x",
 ]  # fmt: skip
 
 
-def bus_bits_per_second(odr_hz: float, hires: bool, i2c: bool) -> float:
-    """Bus bandwidth the FIFO stream needs at this rate, with transfer overhead."""
-    per_byte = I2C_BITS_PER_BYTE if i2c else SPI_BITS_PER_BYTE
-    return odr_hz * (PACKET4_BYTES if hires else PACKET3_BYTES) * per_byte * BUS_OVERHEAD
+def fifo_bytes_per_second(odr_hz: float, hires: bool) -> float:
+    """What the FIFO stream moves over the bus at this rate."""
+    return odr_hz * (PACKET4_BYTES if hires else PACKET3_BYTES)
 
 
 def _one_of(v: float, allowed: tuple[float, ...], what: str) -> float:
@@ -87,27 +83,33 @@ class Icm42688pConfig(DeviceBase):
     @classmethod
     def _bus_can_carry(cls, v: float, info: ValidationInfo) -> float:
         v = _one_of(v, tuple(ODR_CODES), "output data rate (Hz)")
-        bus = info.data.get("bus")
+        bus: Bus | None = info.data.get("bus")
+        if bus is None or bus.transport == "serial":
+            return v  # the bus failed its own checks, or the config's transport check says
         hires = bool(info.data.get("hires"))
-        i2c = isinstance(bus, I2cBus) or (isinstance(bus, SimBus) and bus.transport == "i2c")
-        speed = bus.clock_hz if isinstance(bus, SimBus) else getattr(bus, "speed_hz", None)
-        if speed is not None and not i2c and speed > MAX_SPI_HZ:
+        speed, i2c = bus.clock_hz, bus.transport == "i2c"
+        if not i2c and speed > MAX_SPI_HZ:
             raise ValueError(
                 f"the ICM-42688-P's SPI runs at most at 24 MHz; bus.speed_hz is {speed / 1e6:g} MHz"
             )
-        need = bus_bits_per_second(v, hires, i2c)
-        if speed is not None and need > speed:
-            kind = "I2C" if i2c else "SPI"
-            size = PACKET4_BYTES if hires else PACKET3_BYTES
-            best = max(
-                (r for r in ODR_CODES if bus_bits_per_second(r, hires, i2c) <= speed), default=0
-            )
-            raise ValueError(
-                f"{v:g} Hz needs about {need / 1e6:.2f} Mbit/s on {kind} ({size}-byte FIFO "
-                f"packets, {'9' if i2c else '8'} bits a byte, 25 % transfer overhead) but the bus "
-                f"runs at {speed / 1e6:g} MHz (bus.speed_hz): use "
-                f"{'SPI or ' if i2c else 'a faster clock or '}at most {best:g} Hz"
-            )
+        size = PACKET4_BYTES if hires else PACKET3_BYTES
+        best = max(
+            (
+                r
+                for r in ODR_CODES
+                if budget.bits_per_second(bus.transport, fifo_bytes_per_second(r, hires)) <= speed
+            ),
+            default=0,
+        )
+        why = budget.problem(
+            bus.transport,
+            speed,
+            fifo_bytes_per_second(v, hires),
+            f"{v:g} Hz of {size}-byte FIFO packets",
+            f"use {'SPI or ' if i2c else 'a faster clock or '}at most {best:g} Hz",
+        )
+        if why:
+            raise ValueError(why)
         return v
 
     @field_validator("hires")

@@ -12,7 +12,6 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from imud.buses.models import SerialBus, SimBus
 from imud.chips.api import DeviceBase
 from imud.chips.stim300.datagram import layout
 from imud.chips.stim300.registers import (
@@ -75,13 +74,11 @@ class Stim300Config(DeviceBase):
                 "which imud does not support)"
             )
         bus = self.bus
-        if not isinstance(bus, SerialBus | SimBus):
-            return self  # the registry's transport check says what is wrong
-        if isinstance(bus, SimBus) and bus.transport != "serial":
-            return self
+        if bus.transport != "serial":
+            return self  # the config's transport check says what is wrong
         lay = layout(self.datagram_id, self.line_termination)
         need = min_baud(lay.size, self.odr_hz)
-        baud = bus.baud
+        baud = bus.clock_hz
         if baud < need:
             std = [b for b in BIT_RATES if b >= need]
             fix = (
