@@ -18,10 +18,16 @@ from tests.helpers import free_port
 
 class DaemonProc:
     def __init__(
-        self, tmp: Path, config_body: str, watchdog_usec: int = 1_000_000, session: bool = False
+        self,
+        tmp: Path,
+        config_body: str,
+        watchdog_usec: int = 1_000_000,
+        session: bool = False,
+        env: dict[str, str] | None = None,
     ) -> None:
         """`session`: the daemon leads a process group of its own (its bus processes in it),
-        as under systemd, so the whole group can be signalled at once."""
+        as under systemd, so the whole group can be signalled at once. `env`: added to the
+        daemon's environment (its bus processes inherit it)."""
         self.port = free_port()
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
         self.config = tmp / "imud.toml"
@@ -38,6 +44,7 @@ class DaemonProc:
             **os.environ,
             "NOTIFY_SOCKET": self.notify_path,
             "WATCHDOG_USEC": str(watchdog_usec),
+            **(env or {}),
         }
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "imud", "run", "--config", str(self.config)],
