@@ -94,6 +94,10 @@ class DeviceView:
         self.last_t_ns = 0
         self._first: tuple[int, int] | None = None  # (seq, stamp) of the first sample relayed
         self.raw_wanted = raw_wanted
+        # what this life of the worker published, counted here from the relayed batches: a
+        # worker that dies publishes for up to a status period after its last report
+        self._relayed = 0
+        self._relayed_lost = 0
 
     def status(self) -> DeviceStatus:
         return self._status.plus(self._earlier)
@@ -103,7 +107,11 @@ class DeviceView:
 
     def down(self, msg: str) -> None:
         """The worker died: keep its counters, show the error until a new one reports."""
-        self._earlier = self._status.plus(self._earlier)
+        last = self._status
+        last.samples = max(last.samples, self._relayed)
+        last.lost_samples = max(last.lost_samples, self._relayed_lost)
+        self._relayed = self._relayed_lost = 0
+        self._earlier = last.plus(self._earlier)
         self._earlier.restarts += 1
         self._status = initial_status(self.cfg)
         self._status.state = DeviceState.ERROR
@@ -115,7 +123,9 @@ class DeviceView:
 
     def saw_batch(self, payload: bytes | memoryview) -> None:
         """Where the relayed stream has got to: a restarted worker continues from there."""
-        first_seq, n, t_first, t_last = peek(payload)
+        first_seq, n, t_first, t_last, lost = peek(payload)
+        self._relayed += n
+        self._relayed_lost += lost
         if n:
             self.next_seq = first_seq + n
             self.last_t_ns = t_last

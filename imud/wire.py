@@ -118,17 +118,17 @@ def encode(
     return b"".join((head, name, b"\0" * pad, t.tobytes(), sf, *parts))
 
 
-def peek(buf: bytes | memoryview) -> tuple[int, int, int, int]:
-    """(first seq, sample count, first stamp, last stamp) of an encoded batch, read from its
-    header and stamps alone: how the daemon follows each stream without decoding it. Stamps are
-    0 in a batch of no samples."""
-    _, _, _, name_len, first_seq, n, *_ = HEADER.unpack_from(buf)
+def peek(buf: bytes | memoryview) -> tuple[int, int, int, int, int]:
+    """(first seq, sample count, first stamp, last stamp, lost before) of an encoded batch, read
+    from its header and stamps alone: how the daemon follows each stream without decoding it.
+    Stamps are 0 in a batch of no samples."""
+    _, _, _, name_len, first_seq, n, _, lost, _ = HEADER.unpack_from(buf)
     if not n:
-        return first_seq, 0, 0, 0
+        return first_seq, 0, 0, 0, lost
     off = HEADER.size + name_len + (-name_len) % 8
     (first,) = _STAMP.unpack_from(buf, off)
     (last,) = _STAMP.unpack_from(buf, off + 8 * (n - 1))
-    return first_seq, n, first, last
+    return first_seq, n, first, last, lost
 
 
 def decode(buf: bytes) -> Batch:

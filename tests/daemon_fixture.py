@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import socket
@@ -39,6 +38,7 @@ class DaemonProc:
         self.notify.bind(self.notify_path)
         self.notify.settimeout(0.1)
         self.messages: list[str] = []
+        self._session: Any = None  # a Zenoh session of this process's, once the daemon answers
         self.log = tmp / "daemon.log"
         env = {
             **os.environ,
@@ -62,11 +62,17 @@ class DaemonProc:
             timeout=timeout,
         )
 
-    def status(self) -> dict[str, Any]:
-        r = self.cli("status", "--json", "--connect", self.endpoint)
-        assert r.returncode == 0, r.stderr
-        parsed: dict[str, Any] = json.loads(r.stdout)
-        return parsed
+    def status(self, timeout: float = 10.0) -> dict[str, Any]:
+        """The daemon's status, asked from this process (not through `imud status`: a CLI
+        process per question competes with the daemon under test for the CPU)."""
+        from imud.session import NoDaemon, get_status
+
+        if self._session is None:
+            self._session = self.answering_session()
+        try:
+            return get_status(self._session, timeout=timeout)
+        except NoDaemon:
+            raise AssertionError(f"the daemon did not answer:\n{self.log.read_text()}") from None
 
     def drain_notify(self) -> list[str]:
         while True:
@@ -77,15 +83,20 @@ class DaemonProc:
 
     def wait_started(self, timeout: float = 60.0) -> dict[str, Any]:
         """Until the daemon answers and no device is still starting."""
+        from imud.session import NoDaemon, get_status
+
         end = time.monotonic() + timeout
+        if self._session is None:
+            self._session = self.answering_session()
         while time.monotonic() < end:
             assert self.proc.poll() is None, self.log.read_text()
-            r = self.cli("status", "--json", "--connect", self.endpoint, "--timeout", "1")
-            if r.returncode == 0:
-                st: dict[str, Any] = json.loads(r.stdout)
-                if all(d["state"] != "starting" for d in st["devices"]):
-                    return st
-            time.sleep(0.2)
+            try:
+                st = get_status(self._session, timeout=1.0)
+            except NoDaemon:
+                continue
+            if all(d["state"] != "starting" for d in st["devices"]):
+                return st
+            time.sleep(0.1)
         raise AssertionError(f"daemon did not start:\n{self.log.read_text()}")
 
     def answering_session(self) -> Any:
@@ -93,7 +104,7 @@ class DaemonProc:
         (its devices may still be starting)."""
         import imud.client as ic
 
-        for _ in range(300):
+        for _ in range(600):
             assert self.proc.poll() is None, self.log.read_text()
             try:
                 s = ic.open_session(self.endpoint)
@@ -136,6 +147,9 @@ class DaemonProc:
         return raw
 
     def stop(self, sig: int = signal.SIGTERM) -> tuple[int, float]:
+        if self._session is not None:
+            self._session.close()
+            self._session = None
         if self.proc.poll() is not None:
             return self.proc.returncode, 0.0
         t0 = time.monotonic()

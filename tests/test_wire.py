@@ -28,6 +28,7 @@ from imud.wire import (
     WireError,
     decode,
     encode,
+    peek,
 )
 
 WIDTHS = {0: 3, 1: 3, 2: 1, 3: 3, 4: 4, 5: 3, 6: 3, 7: 3, 8: 3, 9: 3}  # bit -> floats a sample
@@ -273,3 +274,16 @@ def test_invalid_utf8_name_is_wire_error() -> None:
     buf[32] = 0xFF
     with pytest.raises(WireError, match="not UTF-8"):
         decode(bytes(buf))
+
+
+@pytest.mark.parametrize(("name", "n"), [("a", 0), ("imu0", 1), ("seven77", 5), ("x" * 9, 300)])
+def test_peek_reads_what_decode_reads(name: str, n: int) -> None:
+    """The daemon follows each relayed stream with `peek` (header and stamps only): it must say
+    what a full decode says."""
+    t = 1_700_000_000_000_000_000 + np.arange(n, dtype=np.int64) * 1_000_000
+    buf = encode(name, 41, t, {Channel.GYRO: np.zeros((n, 3))}, lost_before=7)
+    b = decode(buf)
+    first, last = (int(b.t_ns[0]), int(b.t_ns[-1])) if n else (0, 0)
+    assert peek(buf) == (b.first_seq, b.count, first, last, b.lost_before)
+    assert peek(buf) == (41, n, first, last, 7)
+    assert peek(memoryview(buf)) == peek(buf)

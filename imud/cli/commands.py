@@ -208,7 +208,7 @@ def _watch(
     from rich.live import Live
     from rich.text import Text
 
-    from imud.client import NoDaemon, get_status
+    from imud.session import NoDaemon, get_status
 
     def frames() -> Iterator[tuple[dict[str, Any] | None, str | None]]:
         while True:

@@ -52,7 +52,7 @@ def _fail(message: str, code: int, as_json: bool = False) -> NoReturn:
 
 # --- talking to a daemon -------------------------------------------------------------------------
 def _session(endpoint: str, as_json: bool = False) -> Any:
-    from imud.client import NoDaemon, open_session
+    from imud.session import NoDaemon, open_session
 
     try:
         return open_session(endpoint)
@@ -63,7 +63,7 @@ def _session(endpoint: str, as_json: bool = False) -> Any:
 def _ask_status(
     session: Any, endpoint: str, prefix: str, timeout: float, as_json: bool = False
 ) -> dict[str, Any]:
-    from imud.client import NoDaemon, get_status
+    from imud.session import NoDaemon, get_status
 
     try:
         return get_status(session, prefix, timeout=timeout)
