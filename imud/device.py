@@ -20,7 +20,7 @@ from imud.buses.models import describe
 from imud.calib.model import CalibrationModel
 from imud.calib.track import GyroBiasTracker
 from imud.channels import CHANNELS, channels_in
-from imud.chips.api import DeviceBase, Driver, RawBatch
+from imud.chips.api import DeviceBase, Driver
 from imud.emit import Emitter, Publish
 from imud.errors import (
     BUS_ERROR_KEYS,
@@ -286,12 +286,9 @@ class DeviceRunner:
             return
         self.next_due_ns = now + self._poll_delay()
         try:
-            raw: RawBatch | None = self.driver.read()
+            raw = self.driver.read()
             assert self.pipeline is not None
-            batches = []
-            while raw is not None:
-                batches.append(self.pipeline.process(raw))
-                raw = raw.then
+            batches = self.pipeline.run(raw)
         except RegisterMismatch as e:
             self.restarts += 1
             self.resets += 1

@@ -1,6 +1,7 @@
 """Pipeline stages: pure functions on NumPy batches, raw counts to published samples, in order.
 
-raw channels --stamp (sample-clock fit, or the driver's own stamps)--> t_ns, seq
+raw channels --stamp (the sample-clock fit, per die)--> t_ns, seq
+             --align (a chip of several dies: onto one die's times; imud.align)
              --less the filters' group delay (the driver's `group_delay_ns`)--> t_ns
              --flags (invalid, saturated, alarm)--> per-sample flags
              --to_si (NaN where invalid)--> SI (the `raw` stream, on demand)
@@ -16,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from imud import registry
+from imud.align import Aligner
 from imud.calib.model import CalibrationModel, apply, fill_temperature
 from imud.calib.track import GyroBiasTracker
 from imud.channels import INVALID_MASK, SATURATED, Channel, SampleFlag
@@ -151,6 +154,15 @@ class SampleBatch:
         return int(self.t_ns.shape[0])
 
 
+@dataclass
+class DieClocks:
+    """A chip whose dies sample on clocks of their own: a sample clock per die (the pipeline's
+    own `clock` is the primary's, whose samples set the stream's times) and the align stage."""
+
+    clocks: list[SampleClock]
+    aligner: Aligner
+
+
 class Pipeline:
     """Holds the only state a batch needs (the sample-clock fit, and where `seq` continues
     from); everything else is pure."""
@@ -163,8 +175,10 @@ class Pipeline:
         resume: tuple[int, int, float | None] | None = None,
         tracker: GyroBiasTracker | None = None,
         group_delay_ns: int = 0,
+        dies: DieClocks | None = None,
     ) -> None:
         self.clock = clock
+        self.dies = dies
         # the driver's configured filter delay at the nominal clock: every stamp is moved back by
         # it, scaled to the chip's fitted clock (a filter's delay is so many of its own samples)
         self.group_delay_ns = group_delay_ns
@@ -175,39 +189,26 @@ class Pipeline:
         self._last_temp: float | None = None
         self.epoch_offset_ns = epoch_offset_ns
         self.period_ns = clock.period
-        if resume is not None:  # a published stamp: back to the latch instant the clock fits
-            resume = (resume[0], resume[1] + group_delay_ns, resume[2])
-        # (next seq, last stamp in host ns) of a stream to continue: the sample clock takes it
-        # for reads it stamps; a driver's own stamps are shifted onto it (`_continue`)
-        self._resume = resume
-        self._seq_offset = 0
         # the newest stamp published (host ns, after the group delay): the delay follows the
         # fitted period, which moves as the fit refines, so the clock's own guarantee (strictly
         # increasing) is re-imposed after it is subtracted
         self._last_out: int | None = None
         if resume is not None:
-            clock.resume(*resume)
-            self._last_out = resume[1] - group_delay_ns
+            # a stream to continue: (next seq, last stamp published, its measured period); the
+            # stamp goes back to the latch instant the clock fits
+            next_seq, last_t, period = resume
+            clock.resume(next_seq, last_t + group_delay_ns, period)
+            self._last_out = last_t
+            if dies is not None:
+                dies.aligner.next_seq = next_seq
 
     def restarted(self) -> None:
         """The chip was re-initialised: its sample grid restarts; `seq` goes on counting."""
-        if self.clock.k_last >= 0:
-            self.clock.rebase()
-
-    def _continue(self, st: Stamped) -> Stamped:
-        """A driver that stamps its own samples counts `seq` from 0: shift it to continue the
-        stream being resumed, counting the samples the time elapsed since then held."""
-        if self._resume is not None and st.t_ns.size:
-            next_seq, last_t, measured = self._resume
-            period = measured or st.period_ns or self.period_ns
-            gap = max(0, round((int(st.t_ns[0]) - last_t) / period) - 1)
-            self._seq_offset = next_seq + gap - st.first_seq
-            self._resume = None
-            return Stamped(st.first_seq + self._seq_offset, st.lost_before + gap, st.t_ns,
-                           st.period_ns)  # fmt: skip
-        if self._seq_offset:
-            return Stamped(st.first_seq + self._seq_offset, st.lost_before, st.t_ns, st.period_ns)
-        return st
+        for c in self.dies.clocks if self.dies is not None else [self.clock]:
+            if c.k_last >= 0:
+                c.rebase()
+        if self.dies is not None:
+            self.dies.aligner.restart()
 
     def delay_ns(self, period_ns: float) -> int:
         """The group delay on the chip's clock, whose period is now `period_ns`."""
@@ -218,9 +219,35 @@ class Pipeline:
         """The chip's output rate as fitted from its sample clock."""
         return 1e9 / self.period_ns
 
+    def run(self, raw: RawBatch) -> list[SampleBatch]:
+        """Everything one read of the chip gave (`raw` and the batches chained after it), as
+        published batches, in order."""
+        out: list[SampleBatch] = []
+        dies = self.dies
+        batch: RawBatch | None = raw
+        if dies is None:
+            while batch is not None:
+                out.append(self.process(batch))
+                batch = batch.then
+            return out
+        while batch is not None:  # each die on its own clock, then merged
+            st = stamp(dies.clocks[batch.die], batch.timing, batch.n)
+            if batch.n:
+                seq = st.first_seq + np.arange(batch.n, dtype=np.int64)
+                dies.aligner.add(batch.die, seq, st.t_ns, batch.channels)
+            batch = batch.then
+        while (a := dies.aligner.take()) is not None:
+            merged = RawBatch(a.n, a.channels, raw.timing)
+            out.append(self._finish(merged, Stamped(a.first_seq, a.lost_before, a.t_ns, 0.0)))
+        return out
+
     def process(self, raw: RawBatch) -> SampleBatch:
-        t = raw.timing
-        st = stamp(self.clock, t, raw.n) if isinstance(t, FifoRead) else self._continue(t)
+        """One die's batch (a chip of one die, or one clock) stamped and through every stage."""
+        return self._finish(raw, stamp(self.clock, raw.timing, raw.n))
+
+    def _finish(self, raw: RawBatch, st: Stamped) -> SampleBatch:
+        if not st.period_ns:
+            st.period_ns = self.clock.period
         if st.period_ns:
             self.period_ns = st.period_ns
         t_ns = st.t_ns
@@ -270,11 +297,23 @@ def build_pipeline(
     """A started device's pipeline: its chip's sample clock, its calibration, the gyro bias
     tracker when enabled, the driver's filter delay."""
     tracking = cfg.gyro_bias_tracking
+    spec = registry.CHIPS[cfg.chip]
+    dies: DieClocks | None = None
+    clock = SampleClock(driver.nominal_period_ns)
+    if spec.die_periods is not None:
+        periods = spec.die_periods(cfg)
+        clocks = [SampleClock(p) for p in periods]
+        clock = clocks[spec.time_base]
+        # the others' samples are waited for up to a few of their periods and polls
+        others = max(p for i, p in enumerate(periods) if i != spec.time_base)
+        wait = max(100e6, 3 * others + 4 * driver.poll_interval_ns)
+        dies = DieClocks(clocks, Aligner(spec.time_base, len(periods), int(wait)))
     return Pipeline(
-        SampleClock(driver.nominal_period_ns),
+        clock,
         calibration,
         epoch_offset_ns,
         resume,
         GyroBiasTracker(tracking) if tracking.enabled else None,
         group_delay_ns=driver.group_delay_ns,
+        dies=dies,
     )

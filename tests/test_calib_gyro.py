@@ -14,14 +14,10 @@ import pytest
 
 from imud.calib.accel import fit_accel
 from imud.calib.estimate import AffineEstimate
-from imud.calib.gyro import (
-    EARTH_RATE_RAD_S,
-    cumulative_product,
-    fit_gyro_bias,
-    fit_gyro_full,
-)
+from imud.calib.gyro import EARTH_RATE_RAD_S, fit_gyro_bias, fit_gyro_full
 from imud.calib.recording import Recording
 from imud.calib.still import CalibrationRefused, find_still
+from imud.rotations import cumulative_product
 from tests.test_calib_still import (
     TWELVE,
     G,

@@ -909,7 +909,11 @@ def test_the_scanner_sees_every_way_of_naming_the_map() -> None:
 # -------------------------------------------------------------------------------------------------
 # simulators share the register map only: never the driver's scales, decoding or config
 # -------------------------------------------------------------------------------------------------
-GENERIC_SIM_IMPORTS = {"imud.chips.api", "imud.clock", "imud.channels", "imud.chips.bits"}
+# physical constants and rotation maths are facts, not a driver's arithmetic
+GENERIC_SIM_IMPORTS = {
+    "imud.chips.api", "imud.clock", "imud.channels", "imud.chips.bits",
+    "imud.units", "imud.rotations",
+}  # fmt: skip
 
 
 def _module_file(name: str) -> Path | None:

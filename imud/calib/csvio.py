@@ -36,6 +36,7 @@ import numpy.typing as npt
 
 from imud.calib.recording import Recording
 from imud.channels import SATURATED
+from imud.units import STANDARD_GRAVITY
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -552,7 +553,7 @@ def read_csv(
     accel_units: AccelUnits = "m/s2",
     gyro_units: GyroUnits = "rad/s",
     mag_units: MagUnits = "T",
-    gravity: float = 9.80665,
+    gravity: float = STANDARD_GRAVITY,
     *,
     time_units: TimeUnits | None = None,
     rate_hz: float | None = None,

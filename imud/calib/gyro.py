@@ -74,6 +74,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from imud import rotations as so3
 from imud.calib.estimate import AffineEstimate, Fit, Verdict
 from imud.calib.recording import Recording
 from imud.calib.stats import chi2_sf
@@ -232,102 +233,6 @@ def fit_gyro_bias(
     )
 
 
-# ---- rotations --------------------------------------------------------------------------------
-
-
-def _skew(v: F64) -> F64:
-    out = np.zeros((*v.shape[:-1], 3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
-
-
-def _exp_and_jr(phi: F64) -> tuple[F64, F64]:
-    """exp([phi]x) and the right Jacobian J_r(phi) for each row of phi (M, 3), with series
-    expansions where the angle is small."""
-    th2 = np.einsum("mi,mi->m", phi, phi)
-    th = np.sqrt(th2)
-    small = th < 1e-4
-    safe = np.where(small, 1.0, th)
-    sn = np.sin(safe)
-    half = np.sin(0.5 * safe)
-    a = sn / safe  # sin t / t
-    b = 2.0 * half * half / (safe * safe)  # (1 - cos t) / t^2, without cancellation
-    c = (safe - sn) / (safe * safe * safe)  # (t - sin t) / t^3
-    if np.any(small):
-        t2 = th2[small]
-        a[small] = 1.0 - t2 / 6.0
-        b[small] = 0.5 - t2 / 24.0
-        c[small] = 1.0 / 6.0 - t2 / 120.0
-    k = _skew(phi)
-    k2 = phi[:, :, None] * phi[:, None, :]  # [phi]x^2 = phi phi^T - |phi|^2 I
-    diag = np.arange(3)
-    k2[:, diag, diag] -= th2[:, None]
-    a3, b3, c3 = a[:, None, None], b[:, None, None], c[:, None, None]
-    e = b3 * k2
-    e += a3 * k
-    e[:, diag, diag] += 1.0
-    jr = c3 * k2
-    jr -= b3 * k
-    jr[:, diag, diag] += 1.0
-    return e, jr
-
-
-def _log(r: F64) -> F64:
-    """Rotation vector of one rotation matrix (angle in [0, pi])."""
-    cos = min(1.0, max(-1.0, (float(np.trace(r)) - 1.0) / 2.0))
-    angle = math.acos(cos)
-    w = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
-    if angle < 1e-6:
-        out: F64 = 0.5 * w
-        return out
-    if angle > math.pi - 1e-4:  # near pi: axis from the symmetric part
-        s = (r + np.eye(3)) / 2.0
-        axis = s[int(np.argmax(np.diag(s)))]
-        axis = axis / np.linalg.norm(axis)
-        if float(axis @ w) < 0:
-            axis = -axis
-        out = angle * axis
-        return out
-    out = angle / (2.0 * math.sin(angle)) * w
-    return out
-
-
-def _jr_inv(rho: F64) -> F64:
-    th = float(np.linalg.norm(rho))
-    k = _skew(rho)
-    if th < 1e-6:
-        out: F64 = np.eye(3) + 0.5 * k
-        return out
-    coef = 1.0 / th**2 - (1.0 + math.cos(th)) / (2.0 * th * math.sin(th))
-    out = np.eye(3) + 0.5 * k + coef * (k @ k)
-    return out
-
-
-def cumulative_product(e: F64) -> F64:
-    """Inclusive running products e[0] @ e[1] @ ... @ e[i] of (M, 3, 3) matrices: a blocked scan
-    (products within sqrt(M) blocks in parallel, then the blocks' own running product,
-    recursively), so the Python loop runs ~2 sqrt(M) times on batches, never per sample."""
-    m = e.shape[0]
-    if m <= 64:
-        out = e.copy()
-        for i in range(1, m):
-            out[i] = out[i - 1] @ out[i]
-        return out
-    size = math.isqrt(m)
-    nb = -(-m // size)
-    x = np.broadcast_to(np.eye(3), (nb * size, 3, 3)).copy()
-    x[:m] = e
-    x = x.reshape(nb, size, 3, 3)
-    for j in range(1, size):
-        x[:, j] = x[:, j - 1] @ x[:, j]
-    before = cumulative_product(x[:, -1])  # running product of whole blocks
-    x[1:] = before[:-1, None] @ x[1:]
-    out = x.reshape(nb * size, 3, 3)[:m]
-    return out
-
-
 # ---- the full fit -------------------------------------------------------------------------------
 
 
@@ -352,8 +257,8 @@ def _integrate(c: F64, w: F64, dt: F64, starts: F64) -> _Integrated:
     """All motions at once: w (M, 3) bias-free raw rates, dt (M,), motion s = samples
     starts[s]..starts[s+1]-1 of the concatenation."""
     phi = (w @ c.T) * dt[:, None]
-    e, jr = _exp_and_jr(phi)
-    pre = cumulative_product(e)
+    e, jr = so3.exp_and_jr(phi)
+    pre = so3.cumulative_product(e)
     idx = np.asarray(starts[:-1], dtype=np.intp)
     ends = np.asarray(starts[1:], dtype=np.intp) - 1
     # P_i running product over all motions; within motion s (first sample f) the product from
@@ -564,7 +469,7 @@ def _linearise(prob: _Problem, x: F64, it: _Integrated | None = None) -> _Linear
             continue
         if prob.earth is not None:
             t = float(prob.durations[s])
-            ex, jr = _exp_and_jr(-(poses[k].T @ e)[None] * t)
+            ex, jr = so3.exp_and_jr(-(poses[k].T @ e)[None] * t)
             rel[s] = ex[0] @ it.rot[s]
             d_psi[s] = -it.rot[s].T @ jr[0] @ (t * (poses[k].T @ des))
         poses[k + 1] = poses[k] @ rel[s]
@@ -582,7 +487,7 @@ def _linearise(prob: _Problem, x: F64, it: _Integrated | None = None) -> _Linear
         rot, g, hc = rel[s], it.g[s], -it.h[s] @ c
         p = rot.T @ u[m.before]
         basis = _basis(u[m.after])
-        bp = basis @ _skew(p)
+        bp = basis @ so3.skew(p)
         rows = slice(row, row + 2)
         r[rows] = basis @ (p - u[m.after])
         jac[rows, :9] = bp @ g
@@ -593,8 +498,8 @@ def _linearise(prob: _Problem, x: F64, it: _Integrated | None = None) -> _Linear
         d_theta[rows, 3 * s : 3 * s + 3] = bp
         row += 2
         if prob.full_turns and m.returns:
-            rho = _log(rot)
-            jinv = _jr_inv(rho)
+            rho = so3.log(rot)
+            jinv = so3.jr_inv(rho)
             rows = slice(row, row + 3)
             r[rows] = rho
             jac[rows, :9] = jinv @ g
@@ -767,7 +672,7 @@ def fit_gyro_full(
         # into a whole one, so such motions stay ordinary (gravity-only) ones
         rot0 = _integrate(np.eye(3), raw - b, dt, starts).rot
         whole = [
-            m.returns and float(np.linalg.norm(_log(r))) < WHOLE_TURN_RAD
+            m.returns and float(np.linalg.norm(so3.log(r))) < WHOLE_TURN_RAD
             for m, r in zip(motions, rot0, strict=True)
         ]
         partial = sum(m.returns for m in motions) - sum(whole)

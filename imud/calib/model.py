@@ -66,10 +66,6 @@ class CalibrationModel:
     def sensor(self, name: str) -> SensorModel | None:
         return {"accel": self.accel, "gyro": self.gyro, "mag": self.mag}[name]
 
-    @property
-    def needs_temperature(self) -> bool:
-        return any(s is not None and s.temp is not None for s in (self.accel, self.gyro, self.mag))
-
 
 # which sensor model corrects which channel, and whether the channel is a per-sample delta
 _TARGETS: tuple[tuple[Channel, str, bool], ...] = (

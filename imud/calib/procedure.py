@@ -19,10 +19,10 @@ import numpy.typing as npt
 from imud.calib.estimate import AffineEstimate, Fit, TempEstimate
 from imud.calib.file import CalibrationFile, sensor_model, with_affine, with_temperature
 from imud.calib.recording import Recording
+from imud.units import STANDARD_GRAVITY
 
 F64 = npt.NDArray[np.float64]
 Kind = Literal["accel", "gyro", "temp", "mag"]
-STANDARD_GRAVITY = 9.80665
 
 
 @dataclass

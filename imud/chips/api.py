@@ -145,11 +145,12 @@ class RawBatch:
 
     n: int
     channels: dict[Channel, RawChannel]
-    timing: FifoRead | Stamped
+    timing: FifoRead
     alarm: npt.NDArray[np.bool_] | None = None  # per sample: the chip's status raised an alarm
-    # the samples after a break inside one read (a chip counter showed samples missing between
-    # two packets): processed and published after this batch, in order
+    # more of the same read, processed after this batch, in order: the samples after a break
+    # inside it (a chip counter showed samples missing between two packets), or another die's
     then: RawBatch | None = None
+    die: int = 0  # which of the spec's `dies` sampled these (a chip of several clocks)
 
 
 @dataclass(slots=True)
@@ -223,6 +224,12 @@ class ChipSpec(Generic[C]):
     raw_spi: bool = False  # its own SPI framing: the driver gets the SpiDevLike, not registers
     # counters of its own (`DriverCounters.chip`), shown by status under these names
     counters: tuple[str, ...] = ()
+    # a chip whose dies sample on clocks of their own (each die's batches say which die,
+    # `RawBatch.die`): each die's nominal sample period (ns) from its config. The pipeline stamps
+    # each die on a sample clock of its own and interpolates the others onto the times of
+    # `time_base`'s samples (imud.align). None: one clock for the chip.
+    die_periods: Callable[[C], tuple[float, ...]] | None = None
+    time_base: int = 0
 
 
 def register_links(links: Sequence[Link]) -> list[RegisterDevice]:

@@ -10,7 +10,8 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
-G0 = 9.80665
+from imud.units import STANDARD_GRAVITY as G0
+
 # (unit name, factor from SI) for the bias of each sensor
 _BIAS_UNIT = {
     "accel": ("mg", 1e3 / G0),

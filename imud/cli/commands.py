@@ -98,10 +98,8 @@ def run(config_path: str, log_level: str) -> None:
 
     from imud.daemon import Daemon
     from imud.logsetup import setup_logging
-    from imud.malloc import cap_arenas
     from imud.zerrors import CleanZenohMessages, describe
 
-    cap_arenas()  # before any thread starts: fewer heaps to scatter free memory (imud.malloc)
     cfg = _load(config_path)
     setup_logging(log_level)
     for handler in logging.getLogger().handlers:

@@ -136,10 +136,6 @@ class SensorFilter:
         """One-sided noise-equivalent bandwidth of the output: RMS = density * sqrt(this)."""
         return self.band_hz * float((self.noise_taps**2).sum())
 
-    @property
-    def rms_per_density(self) -> float:
-        return math.sqrt(self.enbw_hz)
-
 
 def design(
     bandwidth_hz: float,

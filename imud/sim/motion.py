@@ -20,105 +20,11 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from imud.rotations import quat_conj, quat_from_euler_zyx, quat_mul, quat_rotate, rotation_zyx
 from imud.sim.settings import PosesMotion, StillMotion, TumbleMotion
+from imud.units import STANDARD_GRAVITY as G
 
-G = 9.80665
 F64 = npt.NDArray[np.float64]
-
-
-def rotation_zyx(roll_deg: float, pitch_deg: float, yaw_deg: float) -> F64:
-    """Body-to-world rotation R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    r, p, y = (math.radians(a) for a in (roll_deg, pitch_deg, yaw_deg))
-    cr, sr, cp, sp, cy, sy = (
-        math.cos(r),
-        math.sin(r),
-        math.cos(p),
-        math.sin(p),
-        math.cos(y),
-        math.sin(y),
-    )
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
-
-
-# --- quaternions: (w, x, y, z), Hamilton product, q rotates body vectors into the world ---------
-def quat_mul(a: F64, b: F64) -> F64:
-    """Hamilton product a b, for (4,) or (N, 4) arrays (broadcast)."""
-    aw, ax, ay, az = (a[..., i] for i in range(4))
-    bw, bx, by, bz = (b[..., i] for i in range(4))
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
-
-
-def quat_conj(q: F64) -> F64:
-    """The inverse rotation of a unit quaternion."""
-    out: F64 = q * np.array([1.0, -1.0, -1.0, -1.0])
-    return out
-
-
-def _cross(a: F64, b: F64) -> F64:
-    """np.cross for (..., 3) arrays, without its axis handling (a hot path of the simulators)."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
-
-
-def quat_rotate(q: F64, v: F64) -> F64:
-    """v rotated by q (q v q*), for (4,)/(N, 4) quaternions and (3,)/(N, 3) vectors."""
-    w = q[..., :1]
-    r = q[..., 1:]
-    t = 2.0 * _cross(r, v)
-    out: F64 = v + w * t + _cross(r, t)
-    return out
-
-
-def quat_from_axis_angle(axis: F64, angle_rad: float) -> F64:
-    """The rotation by `angle_rad` about the unit vector `axis`."""
-    half = 0.5 * angle_rad
-    return np.concatenate([[math.cos(half)], np.asarray(axis, dtype=np.float64) * math.sin(half)])
-
-
-def quat_from_euler_zyx(roll_deg: float, pitch_deg: float, yaw_deg: float) -> F64:
-    """The quaternion of `rotation_zyx`: Rz(yaw) Ry(pitch) Rx(roll)."""
-    z = quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), math.radians(yaw_deg))
-    y = quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), math.radians(pitch_deg))
-    x = quat_from_axis_angle(np.array([1.0, 0.0, 0.0]), math.radians(roll_deg))
-    return quat_mul(quat_mul(z, y), x)
-
-
-def quat_from_matrix(m: F64) -> F64:
-    """The unit quaternion of a proper rotation matrix (Shepperd's method: stable for every
-    rotation, including half turns)."""
-    tr = float(np.trace(m))
-    cands = [tr, m[0, 0], m[1, 1], m[2, 2]]
-    i = int(np.argmax(cands))
-    if i == 0:
-        s = 2.0 * math.sqrt(1.0 + tr)
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    elif i == 1:
-        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-    elif i == 2:
-        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-    else:
-        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    out = np.array(q)
-    result: F64 = out if out[0] >= 0 else -out
-    return result
 
 
 def _turn(axis: F64, angle: F64) -> F64:

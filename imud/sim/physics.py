@@ -27,16 +27,10 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from imud.sim.motion import G as G
+from imud.rotations import quat_conj, quat_rotate
 from imud.sim.motion import MotionModel as MotionModel
-from imud.sim.motion import quat_conj as quat_conj
-from imud.sim.motion import quat_from_axis_angle as quat_from_axis_angle
-from imud.sim.motion import quat_from_euler_zyx as quat_from_euler_zyx
-from imud.sim.motion import quat_from_matrix as quat_from_matrix
-from imud.sim.motion import quat_mul as quat_mul
-from imud.sim.motion import quat_rotate as quat_rotate
-from imud.sim.motion import rotation_zyx as rotation_zyx
 from imud.sim.settings import ErrorSettings, MagneticSettings, SimSettings
+from imud.units import STANDARD_GRAVITY as G
 
 F64 = npt.NDArray[np.float64]
 

@@ -14,8 +14,8 @@ from imud.chips.adis16465.registers import (
     RANG_MDL_READS_ONE,
     Register,
 )
+from imud.units import STANDARD_GRAVITY
 
-STANDARD_GRAVITY = 9.80665
 # Datasheet scale factors (16-bit outputs) and ranges of the 32-bit delta outputs
 GYRO_LSB_PER_DPS = {1: 160, 2: 40, 3: 10}  # ADIS16465-1/-2/-3
 ACCEL_LSB_PER_G = 4000  # all models: 0.25 mg

@@ -89,7 +89,10 @@ class MscCtrl(IntFlag):
 
 MSC_CTRL_SYNC_MODE = BitField(0x001C)  # [4:2]
 SYNC_MODE_INTERNAL = 0  # 0b010 (scaled sync) puts TIME_STAMP where the burst has DATA_CNTR
-MSC_CTRL_DEFAULT = 0x00C1
+# the power-on value: linear-g compensation and point of percussion on, data ready active high
+MSC_CTRL_DEFAULT = int(
+    MscCtrl.LINEAR_G_COMPENSATION | MscCtrl.POINT_OF_PERCUSSION | MscCtrl.DR_POLARITY
+)
 
 FILT_CTRL_SIZE = BitField(0x0007)  # [2:0] B: Bartlett window, two stages of 2^B taps
 FILT_CTRL_MAX = 6

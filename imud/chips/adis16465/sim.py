@@ -44,8 +44,8 @@ from imud.sim.chip import TRUTH_KEEP, SampledChip
 from imud.sim.filters import NoiseStream, bartlett_taps, enbw_fir
 from imud.sim.physics import ChipFigures
 from imud.sim.settings import SimSettings
+from imud.units import STANDARD_GRAVITY as G
 
-G = 9.80665
 NOMINAL_HZ = 2000.0  # what the chip's integrator assumes its internal rate is
 CLOCK_ERROR_SPAN = 0.03  # initial clock accuracy +-3 %
 # delta-angle range (+-deg) of each model, and the delta-velocity range (+-m/s), over 2^31 counts

@@ -16,6 +16,8 @@ from imud.chips.bmi088.registers import (
     MAX_SPI_HZ,
 )
 
+ACCEL, GYRO = 0, 1  # the dies, in the order of the spec's `dies` (`RawBatch.die`)
+
 
 def gyro_modes_for(odr: float) -> list[int]:
     return [bw for code, (o, bw) in GYRO_BANDWIDTH_CODES.items() if o == odr]

@@ -22,8 +22,8 @@ from imud.chips.bmi088.registers import (
     TEMP_INVALID_MSB,
     AccFifoHeader,
 )
+from imud.units import STANDARD_GRAVITY
 
-STANDARD_GRAVITY = 9.80665
 _HDR_ACCEL = int(AccFifoHeader.ACCEL)
 _HDR_SKIP = int(AccFifoHeader.SKIP)
 _HDR_SENSORTIME = int(AccFifoHeader.SENSORTIME)

@@ -1,10 +1,11 @@
-"""BMI088 driver: both dies' FIFOs each poll, each die stamped on its own clock, paired onto the
-gyro's sample times (`imud.chips.bmi088.pairing`).
+"""BMI088 driver: both dies' FIFOs each poll, one batch per die (`RawBatch.die`); the pipeline
+stamps each die on its own sample clock and interpolates the accel onto the gyro's sample times
+(`imud.align`; the spec's `die_periods` and `time_base`).
 
 The accel FIFO runs in stream mode (a skip frame then counts exactly the frames an overflow
-overwrote); the gyro FIFO stops when full and raises its overrun bit, so what imud reads is whole
-and the gap is counted from the clock fit. A gyro sample with no accel value (accel samples lost
-around it) is published with its accel channel invalid: the gyro measured it.
+overwrote: the batch holds those positions, invalid); the gyro FIFO stops when full and raises
+its overrun bit, so what imud reads is whole and the gap is counted from the clock fit. The
+temperature is read with the accel FIFO's length and travels with the accel samples.
 """
 
 from __future__ import annotations
@@ -18,16 +19,15 @@ import numpy as np
 
 from imud.buses.registers import RegisterDevice
 from imud.channels import Channel
-from imud.chips.api import DriverCounters, RawBatch, RawChannel, Stamped
+from imud.chips.api import DriverCounters, RawBatch, RawChannel
 from imud.chips.bits import BitField
 from imud.chips.bmi088 import decode as d
 from imud.chips.bmi088 import registers as R
-from imud.chips.bmi088.config import Bmi088Config, is_spi
-from imud.chips.bmi088.pairing import DiePairer
+from imud.chips.bmi088.config import ACCEL, GYRO, Bmi088Config, is_spi
+from imud.chips.fifotiming import FifoTiming
 from imud.chips.regplan import RegisterChecker, RegisterPlan, RegisterSetting
 from imud.clock import Clock
 from imud.errors import BusError, DeviceIdentityError, ErrorKind, error_kind
-from imud.timestamps import SampleClock
 
 A, G = R.AccelRegister, R.GyroRegister
 STARTUP_WAIT_NS = 10_000_000  # first samples after power-up are settling: flushed
@@ -103,10 +103,6 @@ class Bmi088Driver:
         self.next_poll_ns: int | None = None  # FIFOs: polled at the interval
         self.accel_scale = d.accel_scale_ms2(cfg.accel_range_g)
         self.gyro_scale = d.gyro_scale_rads(cfg.gyro_range_dps)
-        self.gyro_clock = SampleClock(self.nominal_period_ns)
-        self.accel_clock = SampleClock(self.accel_period_ns)
-        wait = 3 * self.accel_period_ns + 4 * self.poll_interval_ns  # then accel is missing
-        self.pairer = DiePairer(max_wait_ns=int(max(100e6, wait)))
         self.accel_skipped = 0  # frames the accel FIFO reported overwritten (skip frames)
         self.temperature = 23.0
         self.acc_plan = RegisterPlan(acc, accel_plan(cfg), die="accel")
@@ -117,9 +113,7 @@ class Bmi088Driver:
             plans, clock, self.counters, sentinels=[(p, p.settings[-1]) for p in plans],
             poll_ns=self.poll_interval_ns + self.nominal_period_ns,
         )  # fmt: skip
-        self._g_resync = self._a_resync = False
-        self._g_restart: tuple[int, int] | None = None
-        self._a_restart: tuple[int, int] | None = None
+        self.gyro_timing, self.accel_timing = FifoTiming(), FifoTiming()
 
     # --- start ------------------------------------------------------------------------------
     def _identify(self) -> None:
@@ -163,10 +157,8 @@ class Bmi088Driver:
         self.temperature = self._read_temperature()
         self._flush_accel()
         self._flush_gyro()
-        for c in (self.accel_clock, self.gyro_clock):
-            if c.k_last >= 0:  # samples before this start: count the gap on the new grid
-                c.rebase()
-        self.pairer.restart()  # gyro samples read before the restart are still published
+        self.accel_timing.started()  # the runner rebases each die's sample clock
+        self.gyro_timing.started()
         self._checker.restart()
 
     def _read_temperature(self) -> float:
@@ -176,14 +168,14 @@ class Bmi088Driver:
     def _flush_accel(self) -> None:
         t0 = self.clock.now_ns()
         self.acc.write_u8(A.ACC_SOFTRESET, R.ACC_FIFO_FLUSH_CMD)
-        self._a_resync, self._a_restart = True, (t0, self.clock.now_ns())
+        self.accel_timing.flushed(t0, self.clock.now_ns())
         self.counters.fifo_resets += 1
 
     def _flush_gyro(self) -> None:
         t0 = self.clock.now_ns()
         self.gyr.write_u8(G.FIFO_CONFIG_0, 0)  # writing the watermark empties the FIFO
         self._clear_overrun()
-        self._g_resync, self._g_restart = True, (t0, self.clock.now_ns())
+        self.gyro_timing.flushed(t0, self.clock.now_ns())
         self.counters.fifo_resets += 1
 
     def _clear_overrun(self) -> None:
@@ -204,7 +196,7 @@ class Bmi088Driver:
         return True
 
     # --- read -------------------------------------------------------------------------------
-    def _read_gyro(self) -> None:
+    def _read_gyro(self) -> RawBatch:
         tb = self.clock.now_ns()
         status = self.gyr.read_u8(G.FIFO_STATUS)
         ta = self.clock.now_ns()
@@ -214,33 +206,32 @@ class Bmi088Driver:
         # only the overrun bit says samples were dropped: 100 frames without it is a FIFO that
         # just filled, whose newest frame is the newest sample
         overrun = bool(status & _OVERRUN)
-        resync, restart = self._g_resync, self._g_restart
-        self._g_resync, self._g_restart = False, None
         if n == 0:
-            self.gyro_clock.update(0, tb, ta, resync, restart=restart)
+            timing = self.gyro_timing.read(tb, ta)
             if overrun:
                 self.counters.fifo_overflows += 1
                 self._clear_overrun()
-            return
+            return RawBatch(0, {}, timing, die=GYRO)
         r0 = self.clock.now_ns()
         try:
             data = self.gyr.read(G.FIFO_DATA, n * R.GYRO_FRAME_BYTES)
         except BusError as e:
             if self._lost_in_transfer(e, self._flush_gyro):
-                self._g_resync = True  # (with the flush's restart, when the flush went through)
+                self.gyro_timing.broke()  # (with the flush's restart, when it went through)
             raise
         r1 = self.clock.now_ns()
         gyro = d.decode_gyro_fifo(data)
+        timing = self.gyro_timing.read(tb, ta, full=overrun)
         if overrun:
             # stop-on-full: what we read is whole, but the newest sample is old and the ones
             # after it were dropped until this read made room; clearing overrun keeps it going
             self.counters.fifo_overflows += 1
             self._clear_overrun()
-            self._g_resync, self._g_restart = True, (r0, r1)
-        st = self.gyro_clock.update(n, tb, ta, resync, restart=restart, full=overrun)
-        self.pairer.add_gyro(st.first_seq + np.arange(n, dtype=np.int64), st.t_ns, gyro)
+            self.gyro_timing.broke((r0, r1))
+        gyro_ch = RawChannel(gyro, self.gyro_scale, FULL_SCALE)
+        return RawBatch(n, {Channel.GYRO: gyro_ch}, timing, die=GYRO)
 
-    def _read_accel(self) -> None:
+    def _read_accel(self) -> RawBatch | None:
         tb = self.clock.now_ns()
         head = self.acc.read(A.TEMP_MSB, 4)  # TEMP_MSB, TEMP_LSB, FIFO_LENGTH_0/1: one burst
         ta = self.clock.now_ns()
@@ -249,71 +240,64 @@ class Bmi088Driver:
         self.temperature = d.temperature_c(head[0], head[1])
         empty = (head[3] << 8) & R.FIFO_LENGTH_EMPTY
         length = 0 if empty else d.fifo_length(head[2], head[3])
-        resync, restart = self._a_resync, self._a_restart
-        self._a_resync, self._a_restart = False, None
         if length == 0:
-            self.accel_clock.update(0, tb, ta, resync, restart=restart)
-            return
+            return RawBatch(0, {}, self.accel_timing.read(tb, ta), die=ACCEL)
         if length > R.ACC_FIFO_BYTES:
             self.counters.bad_transfers += 1
             self._flush_accel()
-            return
+            return None
         try:
             data = self.acc.read(A.FIFO_DATA, length)
         except BusError as e:
             if self._lost_in_transfer(e, self._flush_accel):
-                self._a_resync = True
+                self.accel_timing.broke()
             raise
         fifo = d.decode_accel_fifo(data)
         n = int(fifo.accel.shape[0])
-        # frame positions counting the frames skip frames say were overwritten: exact gaps
+        # frame positions counting the frames skip frames say were overwritten: exact gaps,
+        # published as positions with no value
         pos = np.arange(n, dtype=np.int64)
-        unknown = False
         for at, count in fifo.skipped_before:
             if count >= R.SKIP_UNKNOWN:  # "more than 255": unknown, the clock fit decides
-                unknown = True
+                self.accel_timing.broke()
             else:
                 pos[at:] += count
             self.accel_skipped += count
             self.counters.fifo_overflows += 1
-        total = int(pos[-1]) + 1 if n else 0
         if fifo.corrupt_at is not None:
             self.counters.bad_transfers += 1
-        if n:
-            st = self.accel_clock.update(
-                total, tb, ta, resync or unknown, restart=restart if resync else None
-            )
-            t = st.t_ns[pos]
-            self.pairer.add_accel(st.first_seq + pos, t, fifo.accel)
-        else:
-            self.accel_clock.update(0, tb, ta, resync, restart=restart)
+        batch = self._accel_batch(fifo.accel, pos, tb, ta)
         if fifo.corrupt_at is not None:
             self._flush_accel()
+        return batch
+
+    def _accel_batch(self, accel: Any, pos: Any, tb: int, ta: int) -> RawBatch:
+        """`accel` frames at positions `pos` of a run of samples (the ones between skipped)."""
+        n = int(accel.shape[0])
+        total = int(pos[-1]) + 1 if n else 0
+        values = np.zeros((total, 3), dtype=accel.dtype)
+        values[pos] = accel
+        missing = None
+        if total != n:
+            missing = np.ones(total, dtype=bool)
+            missing[pos] = False
+        temp = np.full(total, self.temperature)
+        temp_invalid = np.isnan(temp) if math.isnan(self.temperature) else None
+        if missing is not None:
+            temp_invalid = missing if temp_invalid is None else (temp_invalid | missing)
+        channels = {
+            Channel.ACCEL: RawChannel(values, self.accel_scale, FULL_SCALE, missing),
+            Channel.TEMPERATURE: RawChannel(temp, invalid=temp_invalid),
+        }
+        return RawBatch(total, channels, self.accel_timing.read(tb, ta), die=ACCEL)
 
     def read(self) -> RawBatch:
         # the register check first: a mismatch reinitialises both dies, so samples read in this
         # poll would only be thrown away with it
         self._checker.check_next()
-        self._read_gyro()  # gyro first: the accel read after it covers its newest samples
-        self._read_accel()
-        p = self.pairer.take()
-        period = self.gyro_clock.period
-        if p is None:
-            stamps = Stamped(self.pairer.next_seq or 0, 0, np.zeros(0, dtype=np.int64), period)
-            return RawBatch(0, {}, stamps)
-        accel_invalid = None if bool(p.valid.all()) else ~p.valid
-        return RawBatch(
-            p.n,
-            {
-                Channel.ACCEL: RawChannel(p.accel, self.accel_scale, FULL_SCALE, accel_invalid),
-                Channel.GYRO: RawChannel(p.gyro, self.gyro_scale, FULL_SCALE),
-                Channel.TEMPERATURE: RawChannel(
-                    np.full(p.n, self.temperature),
-                    invalid=np.ones(p.n, dtype=bool) if math.isnan(self.temperature) else None,
-                ),
-            },
-            Stamped(p.first_seq, p.lost_before, p.t_ns, period),
-        )
+        gyro = self._read_gyro()  # gyro first: the accel read after it covers its newest samples
+        gyro.then = self._read_accel()
+        return gyro
 
     def stop(self) -> None:
         with contextlib.suppress(BusError):

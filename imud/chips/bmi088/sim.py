@@ -31,8 +31,8 @@ from imud.sim.chip import Encoded, Measured
 from imud.sim.filters import FilteredChip, SensorFilter, enbw_fir
 from imud.sim.physics import ChipFigures, ErrorModel, quantise
 from imud.sim.settings import SimSettings
+from imud.units import STANDARD_GRAVITY as GRAVITY
 
-GRAVITY = 9.80665
 # Noise densities and gyro bias stability from the datasheet (docs/chips/bmi088.md); the other
 # spreads are typical turn-on figures of this chip class, moderated
 FIGURES = ChipFigures(

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 from imud.channels import Channel
 from imud.chips.api import ChipSpec, Die, Driver, register_links
-from imud.chips.bmi088.config import Bmi088Config
+from imud.chips.bmi088.config import GYRO, Bmi088Config
 from imud.clock import Clock
 from imud.sim.api import SimChip
 
@@ -37,4 +37,7 @@ SPEC = ChipSpec(
     transports=("spi", "i2c"),
     channels=Channel.ACCEL | Channel.GYRO | Channel.TEMPERATURE,
     dies=(Die("accel", spi_dummy_bytes=1), Die("gyro")),
+    # each die on its oscillator: the stream runs at the gyro's times, the accel interpolated
+    die_periods=lambda c: (1e9 / c.accel_odr_hz, 1e9 / c.odr_hz),
+    time_base=GYRO,
 )

@@ -17,6 +17,7 @@ import numpy as np
 
 from imud.chips.api import ChipCounter, FifoRead
 from imud.chips.bno055.grid import SampleGrid
+from imud.chips.fifotiming import FifoTiming
 
 COUNTER_MODULO = 1 << 62  # the driver's own count of samples: it never wraps
 
@@ -36,9 +37,12 @@ class SampleCount:
         """The sample at grid `index` (of `epoch`) is the one delivered last."""
         return self.ref == (epoch, index, self.ticks)
 
-    def next(self, tb: int, ta: int, forced: bool, epoch: int, seen: tuple[int, int]) -> FifoRead:
+    def next(
+        self, tb: int, ta: int, timing: FifoTiming, epoch: int, seen: tuple[int, int]
+    ) -> FifoRead:
         """The stamping of the next sample delivered, read within [tb, ta], whose grid index
-        (in grid epoch `epoch`) is one of `seen`; `forced`: the chip's output restarted."""
+        (in grid epoch `epoch`) is one of `seen`; `timing` holds a break the driver saw (the
+        chip's output restarted), to which a counted gap adds."""
         g = self.grid
         period = (g.p_lo + g.p_hi) / 2
         a, b = seen
@@ -71,5 +75,6 @@ class SampleCount:
             self.ref = (epoch, a, ticks)
         self._mid = mid
         step, self.ticks = ticks - last, ticks
-        counter = ChipCounter(np.array([ticks], dtype=np.int64), COUNTER_MODULO)
-        return FifoRead(tb, ta, resync=forced or step != 1, counter=counter)
+        if step != 1:
+            timing.broke()
+        return timing.read(tb, ta, counter=ChipCounter(np.array([ticks], np.int64), COUNTER_MODULO))

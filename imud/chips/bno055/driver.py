@@ -40,14 +40,15 @@ from imud.chips.bno055.grid import SampleGrid
 from imud.chips.bno055.offsets import Offsets, OffsetsError, load_offsets, write_atomic
 from imud.chips.bno055.uart import Bno055Uart
 from imud.chips.bno055.uartpoll import PROBE_LEN, UartPoller
+from imud.chips.fifotiming import FifoTiming
 from imud.chips.regplan import RegisterPlan, RegisterSetting
 from imud.clock import Clock
 from imud.errors import BusError, DeviceIdentityError, RegisterMismatch
+from imud.units import STANDARD_GRAVITY
 
 log = logging.getLogger("imud.chips.bno055")
 
 P0, P1 = R.Page0, R.Page1
-STANDARD_GRAVITY = 9.80665
 CLOCK_TOLERANCE = 0.03  # the chip's own oscillator, assumed within 3 %
 BOOT_POLLS = 5  # CHIP_ID reads after the reset wait before giving up
 BOOT_POLL_NS = 100_000_000
@@ -172,7 +173,7 @@ class Bno055Driver:
         self._last_body = b""  # the previous read's data bytes (I2C)
         self.count = SampleCount(self.grid)
         self._held: Held | None = None  # a new sample whose index the next read pins
-        self._force_resync = False
+        self.timing = FifoTiming()  # a break in the chip's output (its mode restarted)
         self._last_new_ns = self.clock.now_ns()
         self.calib: dict[str, int] | None = None
         self.calib_stat = 0
@@ -302,7 +303,8 @@ class Bno055Driver:
         """One poll of the save: wait out a mode switch without the bus, or take the next step.
         The chip makes no samples meanwhile: the batch says so (resync, counted by the clock)."""
         now = self.clock.now_ns()
-        idle = RawBatch(0, {}, FifoRead(now, now, resync=True))
+        self.timing.broke()
+        idle = RawBatch(0, {}, self.timing.read(now, now))
         if now < self._save_due_ns:
             return idle
         if self._save_phase == 1:
@@ -315,7 +317,7 @@ class Bno055Driver:
             ).start()
             return idle
         self._save_phase = 0
-        self._force_resync = True
+        self.timing.broke()
         self.grid.new_phase()  # the chip's output grid restarted with its mode
         self._last_new_ns = now
         return self.read()
@@ -445,8 +447,7 @@ class Bno055Driver:
 
     def _deliver(self, s: Held, seen: tuple[int, int]) -> RawBatch:
         """A new sample out, its grid index one of `seen` (in its epoch)."""
-        forced, self._force_resync = self._force_resync, False
-        timing = self.count.next(s.tb, s.ta, forced, s.epoch, seen)
+        timing = self.count.next(s.tb, s.ta, self.timing, s.epoch, seen)
         self._prev = s.body
         batch = self._decode(s.body, timing)
         if (

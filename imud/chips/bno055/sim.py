@@ -45,21 +45,14 @@ from imud.chips.bno055 import registers as R
 from imud.chips.bno055.registers import Page0 as P0
 from imud.chips.bno055.registers import Page1 as P1
 from imud.clock import Clock
+from imud.rotations import quat_conj, quat_from_axis_angle, quat_from_matrix, quat_mul, quat_rotate
 from imud.sim.api import SimDie, StreamDie, Truth
 from imud.sim.chip import TRUTH_KEEP, SampledChip
 from imud.sim.filters import NoiseStream, enbw_fir
-from imud.sim.physics import (
-    ChipFigures,
-    MagneticField,
-    quat_conj,
-    quat_from_axis_angle,
-    quat_from_matrix,
-    quat_mul,
-    quat_rotate,
-)
+from imud.sim.physics import ChipFigures, MagneticField
 from imud.sim.settings import SimSettings
+from imud.units import STANDARD_GRAVITY as G
 
-G = 9.80665
 F64 = npt.NDArray[np.float64]
 ACCEL_FUSION_LPF_HZ, GYRO_FUSION_LPF_HZ = 62.5, 32.0
 # The BNO055's own sheet gives no noise densities; these are its accelerometer's and gyroscope's

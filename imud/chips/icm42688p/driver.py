@@ -21,15 +21,16 @@ import numpy.typing as npt
 
 from imud.buses.registers import RegisterDevice
 from imud.channels import Channel
-from imud.chips.api import ChipCounter, DriverCounters, FifoRead, RawBatch, RawChannel
+from imud.chips.api import ChipCounter, DriverCounters, RawBatch, RawChannel
 from imud.chips.bits import BitField
+from imud.chips.fifotiming import FifoTiming
 from imud.chips.icm42688p import registers as R
 from imud.chips.icm42688p.config import Icm42688pConfig
 from imud.chips.regplan import RegisterChecker, RegisterPlan, RegisterSetting
 from imud.clock import Clock
 from imud.errors import BusError, DeviceIdentityError
+from imud.units import STANDARD_GRAVITY
 
-STANDARD_GRAVITY = 9.80665
 _WHOLE = BitField(0xFF)
 _HDR_EMPTY = int(R.Header.MSG)
 _HDR_ACCEL = int(R.Header.ACCEL)
@@ -256,8 +257,7 @@ class Icm42688pDriver:
             [self.plan], clock, self.counters, sentinels=[(self.plan, self.plan.settings[-1])],
             poll_ns=self.poll_interval_ns + self.nominal_period_ns,
         )  # fmt: skip
-        self._resync = False
-        self._restart_ns: tuple[int, int] | None = None
+        self.timing = FifoTiming()
         self.ticks_per_sample = self.nominal_period_ns / R.TICK_NS
         self._last_read_ns = 0  # when the last FIFO data read began: room was made from then
         # the newest packet delivered: its FIFO timestamp (None: after a flush, nothing to
@@ -315,15 +315,14 @@ class Icm42688pDriver:
         self.plan.verify_all()
         yield R.STARTUP_WAIT_NS  # gyro start-up; packets before it carry the invalid marker
         self._flush()
-        self._resync = False
+        self.timing.started()
         self._checker.restart()
 
     def _flush(self) -> None:
         t0 = self.clock.now_ns()
         self.dev.write_u8(R.Bank0.SIGNAL_PATH_RESET, R.SignalPathReset.FIFO_FLUSH)
-        self._restart_ns = (t0, self.clock.now_ns())
+        self.timing.flushed(t0, self.clock.now_ns())
         self._last_read_ns = t0
-        self._resync = True
         self._last_tick = None  # what comes next follows the flush, not the last packet
         self.dev.read(R.Bank0.INT_STATUS, 3)  # the first count after a flush reads 0: discard it
         self.counters.fifo_resets += 1
@@ -331,13 +330,10 @@ class Icm42688pDriver:
     def _batch(
         self, p: Packets | None, t_before: int, t_after: int, full: bool = False
     ) -> RawBatch:
-        resync, self._resync = self._resync, False
-        restart, self._restart_ns = (self._restart_ns if resync else None), None
-        timing = FifoRead(t_before, t_after, resync=resync, restart_ns=restart)
         if p is None:
-            return RawBatch(0, {}, timing)
-        timing.fifo_full = full
-        timing.counter = ChipCounter(p.timestamp, R.TIMESTAMP_MODULO)
+            return RawBatch(0, {}, self.timing.read(t_before, t_after))
+        counter = ChipCounter(p.timestamp, R.TIMESTAMP_MODULO)
+        timing = self.timing.read(t_before, t_after, full=full, counter=counter)
         if p.clean:
             masks: tuple[npt.NDArray[np.bool_] | None, ...] = (None, None, None)
         else:
@@ -374,14 +370,14 @@ class Icm42688pDriver:
         if not p.clean:
             self.invalid_packets += int((p.accel_invalid & p.gyro_invalid).sum())
         if p.n:
-            if self._resync and self._continues(int(p.timestamp[0]), t_after):
+            if self.timing.broken and self._continues(int(p.timestamp[0]), t_after):
                 # the last read found the FIFO full, yet this is the next sample: the FIFO was
                 # not full at that read's count, and the chip went on filling it until the data
                 # burst made room (a stall between the two), so what the burst left comes
                 # first now. The samples it dropped meanwhile show as a break after them, and
-                # are counted there (issue 10: this batch was placed after the restart, and
-                # the gap partly counted twice). Or the chip dropped nothing at all.
-                self._resync, self._restart_ns = False, None
+                # are counted there (placed after the restart instead, the gap was partly
+                # counted twice). Or the chip dropped nothing at all.
+                self.timing.mended()
             self._last_tick = int(p.timestamp[-1])
             self._newest_after_ns = prev_count  # it was not in the FIFO at that count
         if p.n < n:
@@ -405,8 +401,7 @@ class Icm42688pDriver:
             # the next packet, unless it continues this batch (`_continues`), is the first the
             # chip latched after room was made, by r1: after the count began, and after the
             # burst began too if the FIFO was full at the count (nothing could enter before)
-            self._resync = True
-            self._restart_ns = (r0 if n == self.fifo_capacity else t_before, r1)
+            self.timing.broke((r0 if n == self.fifo_capacity else t_before, r1))
         return batch
 
     def _continues(self, tick: int, t_after: int) -> bool:
@@ -431,7 +426,7 @@ class Icm42688pDriver:
         tail = first
         for j, (a, b) in enumerate(itertools.pairwise(edges[1:])):
             last = j == len(breaks) - 1
-            self._resync, self._restart_ns = True, (self._last_read_ns, t_before)
+            self.timing.broke((self._last_read_ns, t_before))
             tail.then = self._batch(p.part(a, b), t_before, t_after, full=full or not last)
             tail = tail.then
         return first

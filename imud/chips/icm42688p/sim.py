@@ -23,8 +23,8 @@ from imud.sim.chip import Encoded, Measured
 from imud.sim.filters import FilteredChip, SensorFilter, enbw_fir
 from imud.sim.physics import ChipFigures, quantise
 from imud.sim.settings import SimSettings
+from imud.units import STANDARD_GRAVITY as G
 
-G = 9.80665
 # Noise densities from the datasheet (docs/chips/icm42688p.md); bias and drift sigmas are typical
 # turn-on spreads of the chip class, moderated
 FIGURES = ChipFigures(

@@ -15,15 +15,16 @@ import numpy.typing as npt
 
 from imud.buses.registers import RegisterDevice
 from imud.channels import Channel
-from imud.chips.api import DriverCounters, FifoRead, RawBatch, RawChannel
+from imud.chips.api import DriverCounters, RawBatch, RawChannel
 from imud.chips.bits import BitField
+from imud.chips.fifotiming import FifoTiming
 from imud.chips.mpu6050 import registers as R
 from imud.chips.mpu6050.config import Mpu6050Config
 from imud.chips.regplan import RegisterChecker, RegisterPlan, RegisterSetting
 from imud.clock import Clock
 from imud.errors import BusError, DeviceIdentityError, ErrorKind, error_kind
+from imud.units import STANDARD_GRAVITY
 
-STANDARD_GRAVITY = 9.80665
 SAMPLE_BYTES = 12  # accel xyz + gyro xyz
 FULL_SCALE = 32767  # |count| of a saturated int16 reading
 FIFO_SENSORS = int(R.FifoEn.XG | R.FifoEn.YG | R.FifoEn.ZG | R.FifoEn.ACCEL)
@@ -133,8 +134,7 @@ class Mpu6050Driver:
             poll_ns=self.poll_interval_ns + self.nominal_period_ns,
         )  # fmt: skip
         self._need_reset = False
-        self._resync = False
-        self._restart_ns: tuple[int, int] | None = None
+        self.timing = FifoTiming()
 
     def start(self) -> Iterator[int]:
         """Identity, reset, configure, FIFO on. Yields the waits (ns) so that the bus worker can
@@ -161,7 +161,7 @@ class Mpu6050Driver:
             self.plan.write(s)
         self._fifo_restart()
         self.plan.verify_all()
-        self._resync = False  # a fresh start: the runner rebases its sample clock anyway
+        self.timing.started()
         self._checker.restart()
 
     def _fifo_restart(self) -> None:
@@ -169,7 +169,7 @@ class Mpu6050Driver:
 
         Samples are discarded from the first write on, so the next batch returned must say so
         (`resync`) even if this or a later transfer fails first."""
-        self._resync = True
+        self.timing.broke()
         self._need_reset = True
         user = self.dev.read_u8(R.Register.USER_CTRL) & ~int(R.UserCtrl.FIFO_EN | _ACTIONS)
         self.dev.write_u8(R.Register.FIFO_EN, 0)
@@ -177,7 +177,7 @@ class Mpu6050Driver:
         self.dev.write_u8(R.Register.FIFO_EN, FIFO_SENSORS)  # every bit of FIFO_EN is defined
         t0 = self.clock.now_ns()
         self.dev.write_u8(R.Register.USER_CTRL, user | R.UserCtrl.FIFO_EN)
-        self._restart_ns = (t0, self.clock.now_ns())
+        self.timing.flushed(t0, self.clock.now_ns())
         self.dev.read_u8(R.Register.INT_STATUS)  # clear a stale overflow flag
         self.counters.fifo_resets += 1
         self._need_reset = False
@@ -190,7 +190,6 @@ class Mpu6050Driver:
         t_before: int,
         t_after: int,
     ) -> RawBatch:
-        resync, self._resync = self._resync, False
         n = int(accel.shape[0])
         return RawBatch(
             n,
@@ -199,9 +198,7 @@ class Mpu6050Driver:
                 Channel.GYRO: RawChannel(gyro, self.gyro_scale, FULL_SCALE),
                 Channel.TEMPERATURE: RawChannel(np.full(n, temp)),
             },
-            FifoRead(
-                t_before, t_after, resync=resync, restart_ns=self._restart_ns if resync else None
-            ),
+            self.timing.read(t_before, t_after),
         )
 
     def read(self) -> RawBatch:

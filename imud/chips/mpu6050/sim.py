@@ -24,8 +24,8 @@ from imud.sim.chip import Encoded, Measured
 from imud.sim.filters import FilteredChip, SensorFilter, design
 from imud.sim.physics import ChipFigures, quantise
 from imud.sim.settings import SimSettings
+from imud.units import STANDARD_GRAVITY as G
 
-G = 9.80665
 # Noise densities from the datasheet (docs/chips/mpu6050.md); bias and drift sigmas are typical
 # turn-on spreads, moderated
 FIGURES = ChipFigures(

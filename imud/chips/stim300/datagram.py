@@ -63,14 +63,6 @@ class Layout:
     crc: int  # = bytes the CRC covers
     size: int  # bytes on the wire
 
-    @property
-    def has_acc(self) -> bool:
-        return self.acc is not None
-
-    @property
-    def has_incl(self) -> bool:
-        return self.incl is not None
-
 
 @cache
 def layout(ident: DatagramId, terminated: bool = False) -> Layout:

@@ -38,8 +38,8 @@ from imud.chips.stim300.registers import (
 )
 from imud.clock import Clock
 from imud.errors import BusError, DeviceIdentityError, RegisterMismatch
+from imud.units import STANDARD_GRAVITY
 
-STANDARD_GRAVITY = 9.80665  # the datasheet's k0, m/s^2 per g
 HOST_BUFFER_BYTES = 4096  # Linux's tty receive buffer: what a stalled reader can lose beyond
 POLL_NS = 5_000_000
 START_TIMEOUT_NS = FIRST_DATAGRAM_MAX_NS + 1_200_000_000  # first datagram, with margin

@@ -29,8 +29,8 @@ from imud.clock import Clock
 from imud.sim.filters import FilteredChip, SensorFilter, design
 from imud.sim.physics import ChipFigures, ErrorModel
 from imud.sim.settings import SimSettings
+from imud.units import STANDARD_GRAVITY as G
 
-G = 9.80665
 # Datasheet figures (docs/chips/stim300.md): ARW 0.15 deg/sqrt(h) and VRW 0.024 m/s/sqrt(h)
 # (5/10 g) are Allan N, the Allan deviation's -1/2 line at 1 s: 0.0025 deg/s/sqrt(Hz) and 4.0e-4
 # m/s^2/sqrt(Hz) = 40.8 ug/sqrt(Hz). The filtered model draws one-sided densities, whose Allan N

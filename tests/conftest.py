@@ -1,0 +1,27 @@
+"""Suite-wide: the slowest files start first, so that on a few workers (pytest-xdist, one file
+per worker at a time) none of them is left to run alone at the end."""
+
+from __future__ import annotations
+
+import pytest
+
+# the files that take longest, longest first (`pytest --durations=0`, docs/testing.md)
+SLOW_FIRST = (
+    "test_daemon_calibrate.py",
+    "test_bus_process.py",
+    "test_adis16465_sim.py",
+    "test_daemon_e2e.py",
+    "test_daemon_bno055.py",
+    "test_toy_chip.py",
+    "test_sim_faults.py",
+    "test_atomic_writes.py",
+    "test_calib_foreign.py",
+    "test_daemon_faults.py",
+    "test_watchdog.py",
+    "test_timestamp_accuracy.py",
+)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    rank = {name: i for i, name in enumerate(SLOW_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: order within
