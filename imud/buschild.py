@@ -1,10 +1,10 @@
 """A bus worker's end of its socket to the daemon: one `BusWorker`, its batches and status
 snapshots out, the daemon's requests in (`imud.busmsg`).
 
-It runs as a process of its own (`python -m imud.buschild FD`, the default: no other bus, nor
-Zenoh, nor the event loop can hold its interpreter lock; measured on a 2-vCPU machine, a
-SCHED_FIFO worker sharing a process waited 3-6 ms for the GIL now and then, longer than a 32 kHz
-FIFO lasts, docs/performance.md) or as a thread of the daemon (`[daemon] bus_processes = false`).
+It runs as a process of its own (`child_main`, the default: no other bus, nor Zenoh, nor the
+event loop can hold its interpreter lock; measured on a 2-vCPU machine, a SCHED_FIFO worker
+sharing a process waited 3-6 ms for the GIL now and then, longer than a 32 kHz FIFO lasts,
+docs/performance.md) or as a thread of the daemon (`[daemon] bus_processes = false`).
 Both run this same code over the same socket; only how it is started and stopped differs
 (`imud.buslink`). It never blocks on the daemon: a full socket drops the batch and counts it
 (`publish_dropped`). It imports neither Zenoh nor the event loop.
@@ -147,12 +147,11 @@ def serve(sock: socket.socket, worker: BusWorker) -> None:
         worker.stop.set()
 
 
-def child_main(fd: int, spec: dict[str, Any]) -> int:
+def child_main(sock: socket.socket, spec: dict[str, Any]) -> None:
     """A bus process: run one bus worker until SIGTERM or the daemon's end of the socket
     closes."""
     setup_logging(spec.get("log_level", "info"))
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the daemon, which stops us
-    sock = socket.socket(fileno=fd)
     with contextlib.suppress(OSError):
         sock.setsockopt(socket.SOL_SOCKET, 32, SNDBUF)  # SO_SNDBUFFORCE (root): room for bursts
     worker = build(sock, spec)
@@ -161,14 +160,3 @@ def child_main(fd: int, spec: dict[str, Any]) -> int:
     gc.freeze()  # see Daemon.run: no long collections on the acquisition path
     sys.setswitchinterval(0.0005)
     serve(sock, worker)
-    return 0
-
-
-def main() -> int:
-    fd = int(sys.argv[1])
-    spec = json.loads(sys.stdin.buffer.read())
-    return child_main(fd, spec)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

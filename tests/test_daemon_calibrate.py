@@ -193,7 +193,8 @@ def test_accel_calibration_completes_live_and_is_applied(
     mag_capture: subprocess.Popen[str],
     gyro_capture: subprocess.Popen[str],
 ) -> None:
-    assert "does not exist" in str(_bench(daemon)["calibration_error"])
+    bench = _bench(daemon)
+    assert "does not exist" in str(bench["calibration_error"]), (bench, daemon.log.read_text())
     r = daemon.cli(
         "calibrate",
         "accel",

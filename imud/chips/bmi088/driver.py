@@ -11,6 +11,7 @@ temperature is read with the accel FIFO's length and travels with the accel samp
 from __future__ import annotations
 
 import contextlib
+import itertools
 import math
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -114,6 +115,7 @@ class Bmi088Driver:
             poll_ns=self.poll_interval_ns + self.nominal_period_ns,
         )  # fmt: skip
         self.gyro_timing, self.accel_timing = FifoTiming(), FifoTiming()
+        self._held: list[RawBatch] = []  # gyro batches read at polls that failed after them
 
     # --- start ------------------------------------------------------------------------------
     def _identify(self) -> None:
@@ -159,6 +161,7 @@ class Bmi088Driver:
         self._flush_gyro()
         self.accel_timing.started()  # the runner rebases each die's sample clock
         self.gyro_timing.started()
+        self._held = []  # read before the restart: the rebased clock counts them as a gap
         self._checker.restart()
 
     def _read_temperature(self) -> float:
@@ -295,9 +298,17 @@ class Bmi088Driver:
         # the register check first: a mismatch reinitialises both dies, so samples read in this
         # poll would only be thrown away with it
         self._checker.check_next()
-        gyro = self._read_gyro()  # gyro first: the accel read after it covers its newest samples
-        gyro.then = self._read_accel()
-        return gyro
+        # gyro first: the accel read after it covers its newest samples. Gyro batches read at a
+        # poll whose accel read then failed go first: the FIFO gave them up, they are not lost
+        self._held.append(self._read_gyro())
+        batches: list[RawBatch | None] = [*self._held, self._read_accel()]
+        self._held = []
+        for a, b in itertools.pairwise(batches):
+            assert a is not None
+            a.then = b
+        first = batches[0]
+        assert first is not None
+        return first
 
     def stop(self) -> None:
         with contextlib.suppress(BusError):
