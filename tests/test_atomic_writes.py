@@ -1,7 +1,7 @@
 """Files imud writes survive a kill at any moment: the reader finds the old file or the new one,
 complete, never a torn one.
 
-Each case runs a real writer in a child process that rewrites the same path in a loop (two
+Each case runs a real writer in a process of its own that rewrites the same path in a loop (two
 contents, alternately), and SIGKILLs it after a random delay, a number of times. Where in the
 write the kill lands is up to the scheduler; what is asserted holds wherever it lands: the path
 reads back as exactly one of the two contents. The writers are the ones the daemon and the CLI
@@ -11,13 +11,12 @@ BNO055's saved offsets use too) and `CsvWriter` (`imud record --csv`, `imud cali
 
 from __future__ import annotations
 
-import os
+import multiprocessing
 import signal
-import subprocess
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -26,61 +25,61 @@ from imud.calib.file import read_calibration
 
 KILLS = 12
 
-CALIBRATION_WRITER = """
-import sys
-from pathlib import Path
-from imud.calib.file import CalibrationFile, SensorTable, write_calibration
 
-path = Path(sys.argv[1])
-files = [
-    CalibrationFile(chip="mpu6050", accel=SensorTable(bias=(k, -k, 2 * k)))
-    for k in (0.125, 0.25)
-]
-i = 0
-while True:
-    write_calibration(path, files[i % 2])
-    if i == 0:
-        print("ready", flush=True)  # one file whole: every kill from here finds one
-    i += 1
-"""
+def calibration_writer(path: Path, ready: Any) -> None:
+    """Rewrite `path` with two calibrations in turn, for ever."""
+    from imud.calib.file import CalibrationFile, SensorTable, write_calibration
 
-CSV_WRITER = """
-import sys
-from pathlib import Path
-import numpy as np
-from imud.calib.csvio import CsvWriter
-
-path = Path(sys.argv[1])
-n = 20000  # rows per file: long enough that a kill often lands mid-write
-t = np.arange(n, dtype=np.int64) * 1_000_000
-i = 0
-while True:
-    fill = 5.0 + i % 2  # every value 5 in one content, 6 in the other (|accel| near g)
-    with CsvWriter(path, has_temp=True) as w:
-        for a in range(0, n, 2000):  # in chunks, as `imud record` writes batches
-            b = a + 2000
-            w.write(t[a:b], np.full((2000, 3), fill), np.full((2000, 3), fill), np.full(2000, 25.0))
-    if i == 0:
-        print("ready", flush=True)  # one file whole: every kill from here finds one
-    i += 1
-"""
+    files = [
+        CalibrationFile(chip="mpu6050", accel=SensorTable(bias=(k, -k, 2 * k)))
+        for k in (0.125, 0.25)
+    ]
+    i = 0
+    while True:
+        write_calibration(path, files[i % 2])
+        if i == 0:
+            ready.set()  # one file whole: every kill from here finds one
+        i += 1
 
 
-def kill_at_random(script: str, path: Path, seed: int, check: Callable[[Path], None]) -> None:
-    """Run `script` on `path` and SIGKILL it at a random moment after its first whole file,
-    KILLS times, checking the path after each kill."""
+def csv_writer(path: Path, ready: Any) -> None:
+    """Rewrite `path` with two recordings in turn, for ever, in chunks as `imud record` does."""
+    from imud.calib.csvio import CsvWriter
+
+    n = 20000  # rows per file: long enough that a kill often lands mid-write
+    t = np.arange(n, dtype=np.int64) * 1_000_000
+    i = 0
+    while True:
+        fill = 5.0 + i % 2  # every value 5 in one content, 6 in the other (|accel| near g)
+        with CsvWriter(path, has_temp=True) as w:
+            for a in range(0, n, 2000):
+                b = a + 2000
+                w.write(t[a:b], np.full((2000, 3), fill), np.full((2000, 3), fill),
+                        np.full(2000, 25.0))  # fmt: skip
+        if i == 0:
+            ready.set()  # one file whole: every kill from here finds one
+        i += 1
+
+
+def kill_at_random(
+    writer: Callable[[Path, Any], None], path: Path, seed: int, check: Callable[[Path], None]
+) -> None:
+    """Run `writer` on `path` in a process of its own and SIGKILL it at a random moment after
+    its first whole file, KILLS times, checking the path after each kill. The writers are forked
+    from a server that imported imud once (an interpreter per writer would spend more on its
+    imports than on writing)."""
     rng = np.random.default_rng(seed)
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(["imud.calib.file", "imud.calib.csvio"])
     for _ in range(KILLS):
-        p = subprocess.Popen(
-            [sys.executable, "-c", script, str(path)],
-            stdout=subprocess.PIPE,
-            env=env,
-        )
-        assert p.stdout is not None and p.stdout.readline().strip() == b"ready"
+        ready = ctx.Event()
+        p = ctx.Process(target=writer, args=(path, ready))
+        p.start()
+        assert ready.wait(60), "the writer never wrote a whole file"
         time.sleep(float(rng.uniform(0.0, 0.3)))
-        p.send_signal(signal.SIGKILL)
-        p.wait(10)
+        p.kill()  # SIGKILL
+        p.join(10)
+        assert p.exitcode == -signal.SIGKILL
         check(path)  # a file was whole before the kill: the path holds one, old or new
 
 
@@ -101,12 +100,12 @@ def check_csv(path: Path) -> None:
 
 def test_a_calibration_file_killed_mid_write_is_old_or_new(tmp_path: Path) -> None:
     path = tmp_path / "imu0.cal.toml"
-    kill_at_random(CALIBRATION_WRITER, path, 1, check_calibration)
+    kill_at_random(calibration_writer, path, 1, check_calibration)
 
 
 def test_a_recording_killed_mid_write_is_old_or_new(tmp_path: Path) -> None:
     path = tmp_path / "rec.csv"
-    kill_at_random(CSV_WRITER, path, 2, check_csv)
+    kill_at_random(csv_writer, path, 2, check_csv)
     # a kill never leaves a torn file at the path (checked after each kill); what it leaves
     # are the unfinished temporary files beside it, named so nothing mistakes them for one
     for left in tmp_path.iterdir():

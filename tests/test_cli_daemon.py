@@ -30,7 +30,7 @@ from imud.wire import encode
 from tests.daemon_fixture import DaemonProc
 from tests.helpers import free_port
 
-G = 9.80665
+G = 9.80665  # standard gravity, m/s^2
 LONG_BUS = "/dev/i2c-imud-test-missing-bus-with-a-path-long-enough-to-overflow-eighty-columns"
 
 CONFIG = f"""
@@ -242,6 +242,23 @@ def _wait_for(proc: subprocess.Popen[bytes], read: Any, want: int, seconds: floa
 def _watch(daemon: DaemonProc) -> list[str]:
     return [sys.executable, "-m", "imud", "status", "--watch", "--interval", "0.3",
             "--connect", daemon.endpoint]  # fmt: skip
+
+
+def test_status_loads_no_chip_and_nothing_numeric(daemon: DaemonProc) -> None:
+    """What `imud status` imports to draw its table from a live daemon: its view, Zenoh, click
+    and rich; no chip, no config model, no NumPy or pydantic (its answer is the daemon's JSON).
+    How long those imports take is docs/performance.md's business."""
+    r = subprocess.run(
+        [sys.executable, "-X", "importtime", "-m", "imud", "status", "--connect", daemon.endpoint],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 0, r.stderr
+    loaded = {ln.rsplit("|", 1)[-1].strip() for ln in r.stderr.splitlines() if "|" in ln}
+    assert "imud.cli.status_view" in loaded and "zenoh" in loaded  # the list is the real one
+    for forbidden in ("imud.chips", "imud.registry", "imud.config", "numpy", "pydantic"):
+        assert not {m for m in loaded if m == forbidden or m.startswith(forbidden + ".")}, forbidden
 
 
 def test_status_watch_refreshes_until_sigint_in_a_pipe(daemon: DaemonProc) -> None:
