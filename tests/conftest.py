@@ -1,9 +1,17 @@
-"""Suite-wide: the slowest files start first, so that on a few workers (pytest-xdist, one file
-per worker at a time) none of them is left to run alone at the end."""
+"""Suite-wide: bytecode is cached, and the slowest files start first, so that on a few workers
+(pytest-xdist, one file per worker at a time) none of them is left to run alone at the end."""
 
 from __future__ import annotations
 
+import sys
+
 import pytest
+
+# The suite starts hundreds of interpreters (daemons, bus processes, CLI runs), each importing
+# imud: where the environment turns bytecode caching off (PYTHONDONTWRITEBYTECODE), every one of
+# them would compile imud's modules from source again, and pytest its rewritten test modules.
+# Written once here, the cached bytecode is what they all read.
+sys.dont_write_bytecode = False
 
 # the files that take longest, longest first (`pytest --durations=0`, docs/testing.md)
 SLOW_FIRST = (

@@ -19,9 +19,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
 from imud.calib.csvio import read_csv
 from imud.calib.file import read_calibration
+
+pytestmark = pytest.mark.slow  # kill loops: a dozen writers killed per case
 
 KILLS = 12
 

@@ -26,6 +26,8 @@ from imud.config import parse_config
 from tests.daemon_fixture import DaemonProc
 from tests.streams import Stream, mark
 
+pytestmark = pytest.mark.slow  # a hung worker waited out, in real time
+
 HUNG_AFTER_S = 2.0
 CONFIG = f"""
 [daemon]

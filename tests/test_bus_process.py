@@ -11,6 +11,8 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
+
 from imud.wire import decode
 from tests.daemon_fixture import DaemonProc
 
@@ -68,6 +70,7 @@ def _wait(d: DaemonProc, cond: object, timeout: float = 60.0) -> dict[str, dict[
     raise AssertionError(f"timed out: {st}\n{d.log.read_text()}")
 
 
+@pytest.mark.slow  # a crash loop of three kills, with restarts backed off, in real time
 def test_a_bus_process_killed_repeatedly_is_restarted_and_nothing_else_notices(
     tmp_path: Path,
 ) -> None:
@@ -165,6 +168,7 @@ clock_error = 0.02
 """
 
 
+@pytest.mark.slow  # a thousand samples measured, a kill, the restart's gap measured again
 def test_a_restarted_bus_process_counts_the_gap_at_the_chips_measured_period(
     tmp_path: Path,
 ) -> None:

@@ -135,6 +135,7 @@ def wait_for(d: DaemonProc, ok: Any, timeout: float = 15.0) -> dict[str, Any]:
     raise AssertionError(f"not reached within {timeout} s: {st}\n{d.log.read_text()}")
 
 
+@pytest.mark.slow  # two daemons, one after the other, each calibrating the chip in real time
 def test_bno055_offsets_survive_a_daemon_restart(tmp_path: Path) -> None:
     offsets = tmp_path / "imu.bno055-offsets.toml"
     (tmp_path / "run1").mkdir()

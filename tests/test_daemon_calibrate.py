@@ -36,6 +36,8 @@ from imud.calib.csvio import read_csv
 from imud.calib.file import CalibrationFile, SensorTable, write_calibration
 from tests.daemon_fixture import DaemonProc
 
+pytestmark = pytest.mark.slow  # live procedures end to end: ~50 s of real time
+
 CONFIG = """
 [[device]]
 name = "bench"

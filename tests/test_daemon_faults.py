@@ -62,6 +62,8 @@ from tests.daemon_fixture import DaemonProc
 from tests.helpers import make_rig
 from tests.streams import Stream, mark
 
+pytestmark = pytest.mark.slow  # fault windows through the daemon, in real time
+
 OUTAGE_AT_S, OUTAGE_S, RESET_AT_S, GARBAGE_ID_S = 3.0, 1.5, 10.0, 3.0
 CLEAN_HZ = 50
 CLEAN_FIFO_MS = 1024 // 12 / CLEAN_HZ * 1000  # how long `clean`'s FIFO holds its samples

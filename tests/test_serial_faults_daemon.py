@@ -66,6 +66,7 @@ serial = {{ corrupt_rate = 2e-4, drop_rate = 1e-3, garbage_rate = 3e-2 }}
 DAMAGE_S = 3.0
 
 
+@pytest.mark.slow  # clean, damaged and clean windows of real serial traffic
 def test_serial_damage_through_the_daemon(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     links: list[imud.sim.pty.PtyLink] = []
     init = imud.sim.pty.PtyLink.__init__

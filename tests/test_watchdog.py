@@ -27,6 +27,8 @@ from imud.sim.api import SimChip
 from imud.wiring import connect
 from tests.helpers import free_port, run_in_process
 
+pytestmark = pytest.mark.slow  # watchdog silences waited out, in real time
+
 
 class Hanging:
     """A real driver whose read blocks once `hang` is set: a chip that holds the bus."""

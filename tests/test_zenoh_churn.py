@@ -34,6 +34,8 @@ from imud.config import parse_config
 from imud.daemon import Daemon
 from tests.helpers import free_port, run_in_process
 
+pytestmark = pytest.mark.slow  # sessions churned and a router restarted, in real time
+
 DEADLINE_S = 20.0  # a bound against hanging, far above what any step needs on a loaded machine
 DEVICES = ("imu0", "imu1")
 

@@ -46,7 +46,10 @@ EXAMPLE = REPO / "configs" / "examples" / "zenoh-tls-acl.toml"
 DEADLINE_S = 20.0  # against hanging only; nothing asserts how long a step took
 ALLOWED_BATCHES = 20
 
-pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl CLI")
+pytestmark = [
+    pytest.mark.slow,  # TLS and ACL sessions through the daemon
+    pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl CLI"),
+]
 
 
 # --- certificates ---------------------------------------------------------------------------------
