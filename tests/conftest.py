@@ -15,18 +15,32 @@ sys.dont_write_bytecode = False
 
 # the files that take longest, longest first (`pytest --durations=0`, docs/testing.md)
 SLOW_FIRST = (
-    "test_daemon_calibrate.py",
-    "test_bus_process.py",
-    "test_adis16465_sim.py",
     "test_daemon_e2e.py",
     "test_daemon_bno055.py",
-    "test_toy_chip.py",
+    "test_adis16465_sim.py",
     "test_sim_faults.py",
-    "test_atomic_writes.py",
+    "test_toy_chip.py",
+    "test_timestamp_accuracy.py",
     "test_calib_foreign.py",
+    "test_bus_process.py",
+    "test_cli_daemon.py",
+    "test_bmi088_driver.py",
+    "test_reload.py",
+    "test_cli_calibrate.py",
+    "test_cli_config.py",
+    "test_icm42688p_sim.py",
+    "test_stim300_sim.py",
+    "test_sim_resets.py",
+    "test_daemon_stim300.py",
+    "test_daemon_icm.py",
+    "test_daemon_adis16465.py",
+    "test_daemon_bmi088.py",
+    # the slow tier (`-m slow`)
+    "test_daemon_calibrate.py",
     "test_daemon_faults.py",
     "test_watchdog.py",
-    "test_timestamp_accuracy.py",
+    "test_atomic_writes.py",
+    "test_bus_hang.py",
 )
 
 
