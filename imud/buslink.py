@@ -21,6 +21,8 @@ import json
 import logging
 import mmap
 import multiprocessing
+import os
+import signal
 import socket
 import threading
 import time
@@ -43,6 +45,7 @@ from imud.chips.api import DeviceBase
 
 if TYPE_CHECKING:
     from imud.busworker import BusWorker
+    from imud.zygote import Zygote
 from imud.device import initial_status
 from imud.reload import Action, BusPlan
 from imud.status import DeviceState, DeviceStatus
@@ -218,6 +221,38 @@ class ProcessTransport:
     def pid(self) -> int | None:
         p = self.proc
         return p.pid if p is not None and p.is_alive() else None
+
+
+class ZygoteTransport:
+    """A process of its own, forked by the daemon's zygote (`imud.zygote`)."""
+
+    killable = True
+
+    def __init__(self, zygote: Zygote) -> None:
+        self.zygote = zygote
+        self._pid: int | None = None
+
+    def start(self, theirs: socket.socket, spec: dict[str, Any]) -> None:
+        self._pid = self.zygote.spawn(theirs, spec)
+
+    def end(self, kill: bool, grace_s: float = 3.0) -> int | None:
+        pid = self._pid
+        if pid is None:
+            return None
+        if not self.zygote.ended(pid):
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL if kill else signal.SIGTERM)
+        code = self.zygote.wait(pid, grace_s)
+        if code is None and not self.zygote.ended(pid):
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+            code = self.zygote.wait(pid, grace_s)
+        return code
+
+    @property
+    def pid(self) -> int | None:
+        pid = self._pid
+        return pid if pid is not None and not self.zygote.ended(pid) else None
 
 
 class ThreadTransport:

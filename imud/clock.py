@@ -18,6 +18,11 @@ class Clock(Protocol):
     def sleep_ns(self, ns: int) -> None:
         """Block the caller for `ns` nanoseconds of this clock's time."""
 
+    def spin_until_ns(self, t_ns: int) -> int:
+        """Wait, without yielding the CPU, until this clock reads `t_ns` (a wait far below the
+        scheduler's granularity: a chip's stall between two SPI frames); the time it then reads.
+        A clock whose time is moved by whoever drives it returns at once."""
+
 
 class MonotonicClock:
     """The host's CLOCK_MONOTONIC."""
@@ -28,6 +33,12 @@ class MonotonicClock:
     def sleep_ns(self, ns: int) -> None:
         if ns > 0:
             time.sleep(ns / 1e9)
+
+    def spin_until_ns(self, t_ns: int) -> int:
+        now = time.monotonic_ns()
+        while now < t_ns:
+            now = time.monotonic_ns()
+        return now
 
 
 class VirtualClock:
@@ -42,6 +53,10 @@ class VirtualClock:
 
     def sleep_ns(self, ns: int) -> None:
         self.advance(ns)
+
+    def spin_until_ns(self, t_ns: int) -> int:
+        # the driver of a virtual clock moves it; a wait inside one bus access takes no time
+        return self._now
 
     def advance(self, ns: int) -> None:
         if ns < 0:

@@ -30,7 +30,16 @@ import zenoh
 from anyio.abc import TaskGroup
 
 from imud import __version__
-from imud.buslink import BusLink, DeviceView, ProcessTransport, Put, Puts, ThreadTransport
+from imud.buslink import (
+    BusLink,
+    DeviceView,
+    ProcessTransport,
+    Put,
+    Puts,
+    ThreadTransport,
+    Transport,
+    ZygoteTransport,
+)
 from imud.busmsg import Stream
 from imud.chips.api import DeviceBase
 from imud.clock import epoch_offset_ns
@@ -42,6 +51,7 @@ from imud.status import DeviceState
 from imud.wire import VERSION
 from imud.zerrors import ZenohSetupError, describe
 from imud.zsession import daemon_config
+from imud.zygote import Zygote
 
 log = logging.getLogger("imud.daemon")
 
@@ -95,8 +105,11 @@ class _Endpoints:
 
 
 class Daemon:
-    def __init__(self, cfg: ImudConfig, config_path: Path | None = None) -> None:
+    def __init__(
+        self, cfg: ImudConfig, config_path: Path | None = None, zygote: Zygote | None = None
+    ) -> None:
         self.cfg = cfg
+        self.zygote = zygote  # forks the bus processes; None: a fork server does
         self.config_path = config_path  # watched for edits, re-read on SIGHUP; None: neither
         self.started = time.monotonic()
         self.notifier = Notifier()
@@ -204,7 +217,13 @@ class Daemon:
         """Links for `buses` (bus key -> its devices in `cfg`), each worker in a process of its
         own, or in a thread here (`[daemon] bus_processes = false`)."""
         spec = self._spec(cfg)
-        transport = ProcessTransport if self.cfg.daemon.bus_processes else ThreadTransport
+        zygote = self.zygote
+        transport: Callable[[], Transport] = ThreadTransport
+        if self.cfg.daemon.bus_processes:
+            if zygote is not None and zygote.alive:
+                transport = lambda: ZygoteTransport(zygote)  # noqa: E731
+            else:
+                transport = ProcessTransport
         return [
             BusLink(key, ds, spec, [self._puts(d) for d in ds], transport, self._raw_on)
             for key, ds in buses.items()
@@ -264,6 +283,8 @@ class Daemon:
                 ends.undeclare()
         finally:
             await anyio.to_thread.run_sync(self.session.close)
+            if self.zygote is not None:
+                self.zygote.close()
         log.info("imud stopped")
         return 0
 

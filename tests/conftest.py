@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 
 import pytest
@@ -42,6 +43,13 @@ SLOW_FIRST = (
     "test_atomic_writes.py",
     "test_bus_hang.py",
 )
+
+
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
+    """One worker more than the machine has cores (`-n auto`): many tests wait on real time
+    (a daemon streaming), and the extra worker fills the cores meanwhile (measured on 2 cores:
+    164 s with 2 workers, 152 s with 3, the cores then idle 18 s instead of 51)."""
+    return (os.cpu_count() or 1) + 1
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

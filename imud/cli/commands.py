@@ -99,12 +99,15 @@ def run(config_path: str, log_level: str) -> None:
     from imud.daemon import Daemon
     from imud.logsetup import setup_logging
     from imud.zerrors import CleanZenohMessages, describe
+    from imud.zygote import Zygote
 
     cfg = _load(config_path)
     setup_logging(log_level)
     for handler in logging.getLogger().handlers:
         handler.addFilter(CleanZenohMessages())
-    daemon = Daemon(cfg, config_path=Path(config_path).resolve())
+    # forked now, before the daemon starts a thread: its bus processes start in milliseconds
+    zygote = Zygote() if cfg.daemon.bus_processes and Zygote.fork_safe() else None
+    daemon = Daemon(cfg, config_path=Path(config_path).resolve(), zygote=zygote)
     try:
         code = anyio.run(daemon.run)
     except KeyboardInterrupt:  # before the daemon's own signal handling is in place

@@ -343,3 +343,6 @@ class _Instant:
 
     def sleep_ns(self, ns: int) -> None:
         raise RuntimeError("a chip does not sleep while it resets")
+
+    def spin_until_ns(self, t_ns: int) -> int:
+        raise RuntimeError("a chip does not wait while it resets")

@@ -17,7 +17,6 @@ real rate, which the driver measures from DATA_CNTR against host time over a lon
 
 from __future__ import annotations
 
-import time
 from collections.abc import Iterator, Sequence
 from typing import Any
 
@@ -69,7 +68,6 @@ _CNTR = int(Reg.DATA_CNTR)
 _POLL = [_CNTR]
 _DIAG_BITS = [(int(b), str(b.name).lower()) for b in R.DiagStat]
 _MODULO = R.DATA_CNTR_MODULO
-_perf = time.perf_counter_ns
 
 
 def register_plan(c: Adis16465Config) -> list[RegisterSetting]:
@@ -177,7 +175,7 @@ class Adis16465Driver:
         self.dvel_scale = d.delta_velocity_scale_ms()
         self.plan = WordPlan(self, register_plan(cfg))
         self._checker = RegisterChecker([self.plan], clock, self.counters)
-        self._ready_ns = 0  # perf_counter instant the next frame may start (stall)
+        self._ready_ns = 0  # the clock instant the next frame may start (the stall)
         self.duplicates = 0
         self.counter_gaps = 0
         self.samples_skipped = 0  # counted from DATA_CNTR steps
@@ -203,15 +201,12 @@ class Adis16465Driver:
     def _frame(self, tx: list[int], speed_hz: int) -> list[int]:
         """One chip-select frame, no sooner than the stall after the last one ends (spun, not
         slept: 16 us is far below the scheduler's granularity)."""
-        ready = self._ready_ns
-        start = _perf()
-        while start < ready:
-            start = _perf()
+        start = self.clock.spin_until_ns(self._ready_ns)
         try:
             rx = self.spi.xfer2(tx, speed_hz)
         except OSError as e:
             raise BusError(e.errno, f"SPI frame 0x{tx[0]:02x}{tx[1]:02x}: {e}") from e
-        self._ready_ns = max(_perf() + R.STALL_NS, start + R.READ_RATE_NS)
+        self._ready_ns = max(self.clock.now_ns() + R.STALL_NS, start + R.READ_RATE_NS)
         return rx
 
     def read_words(self, registers: Sequence[int]) -> list[int]:
