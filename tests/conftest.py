@@ -9,10 +9,11 @@ import sys
 import pytest
 
 # The suite starts hundreds of interpreters (daemons, bus processes, CLI runs), each importing
-# imud: where the environment turns bytecode caching off (PYTHONDONTWRITEBYTECODE), every one of
-# them would compile imud's modules from source again, and pytest its rewritten test modules.
-# Written once here, the cached bytecode is what they all read.
+# imud, NumPy, pydantic, matplotlib: where the environment turns bytecode caching off
+# (PYTHONDONTWRITEBYTECODE), every one of them would compile those modules from source again,
+# and pytest its rewritten test modules. Written once, the cached bytecode is what they all read.
 sys.dont_write_bytecode = False
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)  # for the processes the tests start
 
 # the files that take longest, longest first (`pytest --durations=0`, docs/testing.md)
 SLOW_FIRST = (
