@@ -5,7 +5,8 @@ process, to a Zenoh subscriber, with no imud module changed for it.
 
 Its FIFO overflows (the bus stalls longer than the FIFO lasts), and every gap is counted exactly,
 as each sample's own value shows (the simulated field turns with the chip's sample count); a
-finds, and the chip is re-initialised and streams again. A config its own check refuses fails
+brown-out resets its registers, which the daemon's periodic register re-check finds, and the chip
+is re-initialised and streams again. A config its own check refuses fails
 `imud check-config` with its message.
 """
 
