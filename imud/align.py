@@ -41,10 +41,19 @@ class Aligned:
         return int(self.t_ns.shape[0])
 
 
-class _Primary:
-    """The primary die's samples waiting to go out."""
+class _Samples:
+    """One die's recent samples: times, seqs and each channel's values, in arrival order.
 
-    def __init__(self) -> None:
+    A channel a read did not carry is padded for the samples before it: as valid zeros for the
+    primary (its samples go out whatever they carry), as invalid for a follower (no value to
+    interpolate from)."""
+
+    def __init__(self, as_float: bool, padding_invalid: bool) -> None:
+        self._as_float = as_float
+        self._padding_invalid = padding_invalid
+        self.restart()
+
+    def restart(self) -> None:
         self.t = _NONE_I64
         self.seq = _NONE_I64
         self.data: dict[Channel, npt.NDArray[np.generic]] = {}
@@ -57,47 +66,27 @@ class _Primary:
         self.seq = np.concatenate([self.seq, seq])
         for ch, rc in channels.items():
             self.meta[ch] = rc
+            v = rc.data.astype(np.float64) if self._as_float else rc.data
             old = self.data.get(ch)
-            self.data[ch] = (
-                rc.data if old is None or not old.size else np.concatenate([old, rc.data])
-            )
+            if old is None or not old.size:
+                old = np.zeros((n_old, *v.shape[1:]), dtype=v.dtype)
+            self.data[ch] = np.concatenate([old, v]) if n_old else v
             inv = rc.invalid if rc.invalid is not None else np.zeros(t.size, dtype=bool)
-            prev = self.invalid.get(ch, np.zeros(n_old, dtype=bool))
-            self.invalid[ch] = np.concatenate([prev, inv])
+            pad = np.full(n_old, self._padding_invalid, dtype=bool)
+            self.invalid[ch] = np.concatenate([self.invalid.get(ch, pad), inv])
 
     def drop(self, n: int) -> None:
+        """Let the oldest `n` samples go."""
         self.t, self.seq = self.t[n:], self.seq[n:]
         for ch in self.data:
             self.data[ch], self.invalid[ch] = self.data[ch][n:], self.invalid[ch][n:]
 
 
-class _Follower:
+class _Follower(_Samples):
     """Another die's recent samples, as floats, kept for interpolation."""
 
     def __init__(self) -> None:
-        self.restart()
-
-    def restart(self) -> None:
-        self.t = _NONE_I64
-        self.seq = _NONE_I64
-        self.values: dict[Channel, F64] = {}
-        self.invalid: dict[Channel, Mask] = {}
-        self.meta: dict[Channel, RawChannel] = {}
-
-    def add(self, seq: I64, t: I64, channels: dict[Channel, RawChannel]) -> None:
-        n_old = self.t.size
-        self.t = np.concatenate([self.t, t])
-        self.seq = np.concatenate([self.seq, seq])
-        for ch, rc in channels.items():
-            self.meta[ch] = rc
-            v = rc.data.astype(np.float64)
-            old = self.values.get(ch)
-            if old is None:
-                old = np.zeros((n_old, *v.shape[1:]))
-            self.values[ch] = np.concatenate([old, v])
-            inv = rc.invalid if rc.invalid is not None else np.zeros(t.size, dtype=bool)
-            prev = self.invalid.get(ch, np.ones(n_old, dtype=bool))
-            self.invalid[ch] = np.concatenate([prev, inv])
+        super().__init__(as_float=True, padding_invalid=True)
 
     def at(self, t: I64) -> dict[Channel, RawChannel]:
         """Each channel at the times `t` (ascending), with where it has no value; the history
@@ -106,7 +95,7 @@ class _Follower:
         out: dict[Channel, RawChannel] = {}
         if a_t.size < 2:
             for ch, rc in self.meta.items():
-                shape = (n, *self.values[ch].shape[1:])
+                shape = (n, *self.data[ch].shape[1:])
                 out[ch] = RawChannel(np.zeros(shape), rc.scale, rc.full_scale, np.ones(n, bool))
             return out
         j = np.searchsorted(a_t, t, side="right") - 1  # newest sample at or before t
@@ -115,16 +104,13 @@ class _Follower:
         w = np.clip((t - t0) / (t1 - t0), 0.0, 1.0)
         base = (j >= 0) & (t <= a_t[-1]) & (self.seq[jj + 1] - self.seq[jj] == 1)
         for ch, rc in self.meta.items():
-            v = self.values[ch]
+            v = self.data[ch].astype(np.float64, copy=False)  # floats since add()
             ww = w.reshape(n, *([1] * (v.ndim - 1)))
             values = v[jj] + ww * (v[jj + 1] - v[jj])
             inv = self.invalid[ch]
             valid = base & ~inv[jj] & ~inv[jj + 1]
             out[ch] = RawChannel(values, rc.scale, rc.full_scale, None if valid.all() else ~valid)
-        keep = int(max(jj[-1], 0))  # samples wholly before the newest time: no longer needed
-        self.t, self.seq = self.t[keep:], self.seq[keep:]
-        for ch in self.values:
-            self.values[ch], self.invalid[ch] = self.values[ch][keep:], self.invalid[ch][keep:]
+        self.drop(int(max(jj[-1], 0)))  # samples wholly before the newest time: no longer needed
         return out
 
 
@@ -136,7 +122,7 @@ class Aligner:
         self.primary = primary
         self.max_wait_ns = max_wait_ns  # primary samples older than this never wait longer
         self.next_seq: int | None = None  # seq the next run should start at
-        self._p = _Primary()
+        self._p = _Samples(as_float=False, padding_invalid=False)
         self._others = {d: _Follower() for d in range(dies) if d != primary}
 
     def restart(self) -> None:
