@@ -257,8 +257,11 @@ class Daemon:
         self.session = await anyio.to_thread.run_sync(zenoh.open, daemon_config(z))
         try:
             self.offset_ns = epoch_offset_ns()
-            self._declare_all(self.session, self.cfg)
+            # the links first: they hold the devices' status, and from the moment the status
+            # queryable is declared an answer must list every configured device (a client
+            # waiting for "no device starting" would otherwise take an empty list for done)
             self.links = self._make_links(self.cfg, by_bus(self.cfg))
+            self._declare_all(self.session, self.cfg)
             # Everything built so far lives as long as the daemon: move it out of the cyclic
             # collector's sight, so a full collection cannot stall a bus worker for milliseconds
             # (a 32 kHz FIFO overflows after 4 ms). The default thresholds stay: they keep each

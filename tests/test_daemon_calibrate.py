@@ -197,7 +197,9 @@ def test_accel_calibration_completes_live_and_is_applied(
     gyro_capture: subprocess.Popen[str],
 ) -> None:
     bench = _bench(daemon)
-    assert "does not exist" in str(bench["calibration_error"]), (bench, daemon.log.read_text())
+    assert "does not exist" in str(bench["calibration_error"]), (
+        json.dumps(daemon.status(), indent=1) + "\n" + daemon.log.read_text()
+    )
     r = daemon.cli(
         "calibrate",
         "accel",
