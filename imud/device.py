@@ -365,6 +365,7 @@ class DeviceRunner:
         st.poll_late_max_ms = round(self.lateness.max_ns / 1e6, 3)
         e = self.emitter
         st.samples, st.invalid_samples = e.samples, e.invalid_samples
+        st.uncertain_gaps = e.uncertain_gaps
         st.calibration_outside_span = e.calibration_outside_span
         st.temperature_c = None if e.temperature_c is None else round(e.temperature_c, 2)
         st.lost_samples = self.lost_samples

@@ -15,7 +15,7 @@ import numpy.typing as npt
 
 from imud.channels import INVALID_MASK, Channel
 from imud.pipeline import SampleBatch
-from imud.wire import FLAG_CALIBRATED, FLAG_RESYNC, encode
+from imud.wire import FLAG_CALIBRATED, FLAG_GAP_UNCERTAIN, FLAG_RESYNC, encode
 
 Publish = Callable[[bytes], None]
 
@@ -50,6 +50,8 @@ class Emitter:
         self.calibration_outside_span = 0
         self.temperature_c: float | None = None
         self.unpublished_lost = 0  # carried into the next published batch's lost_before
+        self.unpublished_uncertain = False  # ... and whether that count is an estimate
+        self.uncertain_gaps = 0  # gaps published as estimates (FLAG_GAP_UNCERTAIN)
         # (next seq, last stamp less the epoch offset) of what was published: where a
         # successor (the device restarted with new settings by a reload) continues
         self.stream_end: tuple[int, int] | None = None
@@ -61,6 +63,8 @@ class Emitter:
     def emit(self, batch: SampleBatch, now: int) -> None:
         if batch.lost_before:
             self.lost(batch.lost_before, now)
+        if batch.flags & FLAG_GAP_UNCERTAIN:
+            self.unpublished_uncertain = True
         self.calibration_outside_span += batch.outside_span
         run_end = 0
         whole = batch.hole is None
@@ -79,7 +83,10 @@ class Emitter:
             sf = sf[start:end]
         chans = batch.channels if whole else {c: a[start:end] for c, a in batch.channels.items()}
         t_ns = batch.t_ns if whole else batch.t_ns[start:end]
-        flags = batch.flags | (FLAG_RESYNC if self.unpublished_lost else 0)
+        flags = batch.flags & ~FLAG_GAP_UNCERTAIN | (FLAG_RESYNC if self.unpublished_lost else 0)
+        if self.unpublished_uncertain:  # on the run that carries the gap, not the ones after
+            flags |= FLAG_GAP_UNCERTAIN
+            self.uncertain_gaps += 1
         lost, seq = self.unpublished_lost, batch.first_seq + start
         self.publish(encode(self.name, seq, t_ns, chans, sf, flags=flags, lost_before=lost))
         if batch.raw is not None and self.publish_raw is not None:
@@ -89,6 +96,7 @@ class Emitter:
                 encode(self.name, seq, t_ns, raw, sf, flags=uncorrected, lost_before=lost)
             )
         self.unpublished_lost = 0
+        self.unpublished_uncertain = False
         self.stream_end = (seq + end - start, int(t_ns[-1]) - self.epoch_offset_ns)
         self.samples += end - start
         self.batches += 1

@@ -24,7 +24,7 @@ from imud.calib.track import GyroBiasTracker
 from imud.channels import INVALID_MASK, SATURATED, Channel, SampleFlag
 from imud.chips.api import DeviceBase, Driver, FifoRead, RawBatch, Stamped
 from imud.timestamps import SampleClock
-from imud.wire import FLAG_CALIBRATED, FLAG_RESYNC
+from imud.wire import FLAG_CALIBRATED, FLAG_GAP_UNCERTAIN, FLAG_RESYNC
 
 F64 = npt.NDArray[np.float64]
 U32 = npt.NDArray[np.uint32]
@@ -161,6 +161,8 @@ class DieClocks:
 
     clocks: list[SampleClock]
     aligner: Aligner
+    # the primary's clock counted a gap it could not pin: the next run after a gap says so
+    uncertain: bool = False
 
 
 class Pipeline:
@@ -232,13 +234,18 @@ class Pipeline:
             return out
         while batch is not None:  # each die on its own clock, then merged
             st = stamp(dies.clocks[batch.die], batch.timing, batch.n)
+            if st.uncertain and batch.die == dies.aligner.primary:
+                dies.uncertain = True
             if batch.n:
                 seq = st.first_seq + np.arange(batch.n, dtype=np.int64)
                 dies.aligner.add(batch.die, seq, st.t_ns, batch.channels)
             batch = batch.then
         while (a := dies.aligner.take()) is not None:
             merged = RawBatch(a.n, a.channels, raw.timing)
-            out.append(self._finish(merged, Stamped(a.first_seq, a.lost_before, a.t_ns, 0.0)))
+            uncertain = dies.uncertain and a.lost_before > 0
+            dies.uncertain = dies.uncertain and not uncertain
+            st = Stamped(a.first_seq, a.lost_before, a.t_ns, 0.0, uncertain)
+            out.append(self._finish(merged, st))
         return out
 
     def process(self, raw: RawBatch) -> SampleBatch:
@@ -271,8 +278,10 @@ class Pipeline:
                 outside = int(np.count_nonzero(clamped))
         if self.tracker is not None:
             channels = track(self.tracker, channels, (st.period_ns or self.period_ns) / 1e9)
-        batch_flags = (FLAG_CALIBRATED if cal is not None else 0) | (
-            FLAG_RESYNC if st.lost_before else 0
+        batch_flags = (
+            (FLAG_CALIBRATED if cal is not None else 0)
+            | (FLAG_RESYNC if st.lost_before else 0)
+            | (FLAG_GAP_UNCERTAIN if st.uncertain else 0)
         )
         return SampleBatch(
             st.first_seq,

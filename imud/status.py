@@ -48,6 +48,8 @@ class DeviceStatus:
     # --- counters ---
     samples: int = _counter()
     lost_samples: int = _counter("lost")
+    # gaps whose length the host's timing could not pin to one count (FLAG_GAP_UNCERTAIN)
+    uncertain_gaps: int = _counter("gaps counted as estimates")
     invalid_samples: int = _counter("invalid samples")
     fifo_overflows: int = _counter("FIFO overflows")
     fifo_resets: int = _counter()  # the driver emptied the FIFO (each start, each overflow)

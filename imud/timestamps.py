@@ -159,6 +159,10 @@ class SampleClock:
         self._period_bounds: tuple[float, float] | None = None  # what the bounds allow
         # (index, host time) of the newest read's sample as the feasible polygon puts it
         self._anchor: tuple[float, float] | None = None
+        # how far the anchored line may be off: half the polygon's range of the anchor sample's
+        # instant and of the period (ns): at index k, by phase + |k - anchor| * period
+        self._spread: tuple[float, float] = (0.0, 0.0)
+        self._unpinned = False  # the gap that starts the next segment was counted as an estimate
         self._segment = 0
         self._segment_pending = False  # the next observation starts a new segment
         self._solved_ns = -SOLVE_EVERY_NS  # host time of the read the last solve came at
@@ -234,6 +238,7 @@ class SampleClock:
                 t_new = self._at(k) + (c_lo + c_hi) / 2.0
                 self.period = p
                 self._anchor = (float(k), t_new)
+                self._spread = ((c_hi - c_lo) / 2.0, (p_hi - p_lo) / 2.0)
                 self._exact = True
                 return
         if self._exact and self._count - self._hulls[0].start < 8:
@@ -257,7 +262,10 @@ class SampleClock:
             run = old if old.below else None
             if run is not None and self._prior is not None and self._prior_ok:
                 run = self._prior.merged(run)
-            self._prior = run
+            # after a gap counted as an estimate, the earlier bounds carry indices that may be
+            # off by a sample: bounds that loose would still agree, and narrow the polygon
+            # around a wrong line
+            self._prior = None if self._unpinned else run
             old = young = _Hulls(self._count, ta)
         elif not old.below:  # the first read (of the stream, or since a rebase)
             old = young = _Hulls(self._count, ta)
@@ -389,11 +397,49 @@ class SampleClock:
                 lo, hi = self._band(current)
         return (lo + hi) / 2.0
 
-    def _index_before(self, t: float) -> int:
-        """Index of the newest sample the fitted line puts at or before host time `t`."""
-        return math.floor(
+    def _index_at(self, t: float) -> float:
+        """The fitted line's (fractional) sample index at host time `t`."""
+        return (
             (t - self._correction() - self._t_ref - self._my) / self.period + self._k_ref + self._mk
         )
+
+    def _index_before(self, t: float) -> int:
+        """Index of the newest sample the fitted line puts at or before host time `t`."""
+        return math.floor(self._index_at(t))
+
+    def _pinned(
+        self, k: int, n: int, read: tuple[int, int] | None, restart: tuple[int, int] | None
+    ) -> tuple[int, bool, bool]:
+        """After a gap: the newest index `k` the line picked, moved into those the brackets
+        allow; whether the count is an estimate; and whether the brackets allow more than one
+        count (or none), which is what makes the bounds from before the gap suspect. Over
+        every line the reads' hard bounds allow (the feasible polygon); without one (too few
+        reads, or bounds that disagree) the count is an estimate whatever the brackets say.
+
+        The read's count was latched inside its bracket, so the newest sample came before its
+        end and the one after it not before its start; the FIFO was restarted inside `restart`,
+        so the batch's first sample came after its start and the one before it before its end.
+        Each leaves a window of a period and the bracket's width; a loaded host that widens
+        both leaves two or more counts possible, which no fit can tell apart."""
+        if read is None and restart is None:
+            return k, True, True  # nothing to pin it with
+        if self._anchor is None:
+            slack, unbounded = 0.0, True
+        else:
+            phase, period = self._spread
+            off = phase + abs(k - self._anchor[0]) * period
+            slack, unbounded = (DRIFT_SLACK_NS + off) / self.period, False
+        lo, hi = -math.inf, math.inf
+        if read is not None:
+            lo, hi = self._index_at(read[0]) - 1.0, self._index_at(read[1])
+        if restart is not None:
+            lo = max(lo, self._index_at(restart[0]) + n - 1)
+            hi = min(hi, self._index_at(restart[1]) + n)
+        least = max(math.floor(lo - slack) + 1, self.k_last + n)  # integers in (lo, hi]
+        most = math.floor(hi + slack)
+        if most < least:  # the brackets disagree with the line: keep its pick, say so
+            return k, True, True
+        return min(max(k, least), most), unbounded or most > least, most > least
 
     def _learn_ticks(
         self, first: int, n: int, ticks: npt.NDArray[np.int64], mod: int, advance: int | None
@@ -579,7 +625,7 @@ class SampleClock:
             return self.k_last + n, None, silent
         return k, advance_or_none, silent
 
-    def _stamp_one(self, k: int, lost: int) -> Stamped:
+    def _stamp_one(self, k: int, lost: int, uncertain: bool) -> Stamped:
         """`update`'s stamping for a batch of one sample (same steering and ordering)."""
         est = self._at(k) + self._correction()
         last = self.last_ts
@@ -592,7 +638,7 @@ class SampleClock:
             t = last + 1
         self.last_ts = t
         self.k_last = self._ts_k = k
-        return Stamped(k, lost, np.array([t], dtype=np.int64), self.period)
+        return Stamped(k, lost, np.array([t], dtype=np.int64), self.period, uncertain)
 
     def resume(self, next_seq: int, last_t_ns: int, period_ns: float | None = None) -> None:
         """Continue a stream stamped elsewhere (a bus process that died) up to `last_t_ns`,
@@ -655,16 +701,22 @@ class SampleClock:
             return Stamped(self.k_last + 1, lost, np.zeros(0, dtype=np.int64), self.period)
         self._pending_resync = False
         self._pending_restart = None
+        uncertain = unpinned = False
         if self.k_last < 0:
             k_new = n - 1
         elif self._rebase:  # no fit yet on the new grid: count the gap at the nominal period
             gap = ((t_before + t_after) / 2.0 - (self.last_ts or 0)) / self.period
             k_new = self.k_last + max(n, round(gap))
             self._rebase = False
+            uncertain = True  # the new grid's phase is not known: one more or less may fit
         elif resync and full and restart is not None:  # only the restart instant says where
             k_new = max(self._index_before(restart[0]) + n, self.k_last + n)
+            k_new, uncertain, unpinned = self._pinned(k_new, n, None, restart)
         elif resync:
             k_new = max(self._resync_index(n, t_before, t_after, restart), self.k_last + n)
+            # a stop-on-full FIFO's newest sample is not the one latched before the read
+            read = None if full else (t_before, t_after)
+            k_new, uncertain, unpinned = self._pinned(k_new, n, read, restart)
         else:
             k_new = self.k_last + n
         segment = resync  # the bounds before a gap hold for the line after it only if the gap
@@ -673,6 +725,8 @@ class SampleClock:
                                                    restart, ticks, ticks_modulo)  # fmt: skip
             self._learn_ticks(k_new - n + 1, n, ticks, ticks_modulo, advance)
             resync = resync or silent
+            if advance is not None:  # the counter followed the gap: exact
+                uncertain = unpinned = False
             # a sample counter (whole ticks a sample) that followed the gap counts it exactly:
             # the same line goes on. A new segment would drop the polygon's settling (solving
             # at every read, merging hulls): an ADIS16465 losing samples on a busy machine spent
@@ -680,6 +734,7 @@ class SampleClock:
             segment = resync and not (advance is not None and self._sample_counter())
         first = k_new - n + 1
         lost = first - (self.k_last + 1) if self.k_last >= 0 else 0
+        self._unpinned = unpinned
         if resync and restart is not None and self._count:
             # the restart instant pins the new segment's phase only when it is known to within a
             # couple of periods: a wide one (a long FIFO burst after a stop-on-full overflow) would
@@ -697,7 +752,7 @@ class SampleClock:
             # one that holds)
             self._observe(k_new, t_before, t_after, new_segment=segment, phase=not full)
         if n == 1:  # a chip without a FIFO, once a sample: the same in scalars (NumPy's
-            return self._stamp_one(first, lost)  # per-call cost is most of it at n = 1)
+            return self._stamp_one(first, lost, uncertain)  # per-call cost is most of it at n = 1)
         ks = np.arange(first, k_new + 1, dtype=np.float64)
         est = self._line(ks) + self._correction()
         if self.last_ts is not None and first == self._ts_k + 1:
@@ -716,4 +771,4 @@ class SampleClock:
             t = np.maximum(t, self.last_ts + 1 + np.arange(n, dtype=np.int64))
         self.last_ts = int(t[-1])
         self.k_last = self._ts_k = k_new
-        return Stamped(first, lost, t, self.period)
+        return Stamped(first, lost, t, self.period, uncertain)

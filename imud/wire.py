@@ -22,6 +22,7 @@ KIND_SAMPLES = 0
 KIND_TRUTH = 1
 FLAG_CALIBRATED = 1 << 0
 FLAG_RESYNC = 1 << 1
+FLAG_GAP_UNCERTAIN = 1 << 2  # lost_before is the sample clock's best estimate (docs/wire-format.md)
 HEADER = struct.Struct("<4sBBHQIIII")  # magic, version, kind, name_len, first_seq, count,
 #                                        flags, lost_before, channel mask
 assert HEADER.size == 32

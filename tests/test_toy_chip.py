@@ -24,7 +24,7 @@ import pytest
 
 import imud.client as ic
 from imud.channels import Channel
-from imud.wire import Batch
+from imud.wire import FLAG_GAP_UNCERTAIN, Batch
 from tests.daemon_fixture import DaemonProc
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -118,14 +118,22 @@ def test_the_toy_streams_through_the_daemons_bus_process(
     assert dev["fifo_overflows"] >= 1 and dev["lost_samples"] > 0, dev
     assert dev["resets"] >= 1 and dev["bad_registers"] >= 1 and dev["state"] == "running", dev
     assert dev["fifo_resets"] >= dev["fifo_overflows"] + dev["resets"], dev
-    # every gap counted exactly: until the brown-out restarts the chip's count, each sample's
-    # seq is the chip's own index of it plus one constant, across every overflow
+    # every gap counted exactly, or flagged as an estimate: until the brown-out restarts the
+    # chip's count, each sample's seq is the chip's own index of it plus a constant, which
+    # changes only across a gap the daemon said it could not pin (a host too loaded to time
+    # the FIFO's restart within a period: the toy has no sample counter to settle it)
     seq = np.concatenate([b.seq for b in got])
     index = _sample_index(np.concatenate([b.channels[Channel.MAG] for b in got]))
     (restart,) = np.flatnonzero(np.diff(index) < 0)[:1] + 1  # the brown-out
     lost = np.concatenate([np.r_[b.lost_before, np.zeros(b.count - 1, int)] for b in got])
+    estimated = np.concatenate(
+        [np.r_[bool(b.flags & FLAG_GAP_UNCERTAIN), np.zeros(b.count - 1, bool)] for b in got]
+    )
     assert lost[:restart].sum() > 0  # overflows before it
-    assert set((seq - index)[:restart].tolist()) == {int(seq[0] - index[0])}
+    offset = (seq - index)[:restart]
+    moved = np.flatnonzero(np.diff(offset)) + 1
+    assert estimated[moved].all(), (moved, offset[moved - 1], offset[moved])
+    assert dev["uncertain_gaps"] >= int(estimated.sum()), dev
     # what its spec declares, scaled to SI by its driver's scales
     assert set(got[0].channels) == {Channel.GYRO, Channel.MAG}
     gyro = np.concatenate([b.channels[Channel.GYRO] for b in got])

@@ -102,12 +102,17 @@ class ChipCounter:
 @dataclass(slots=True)
 class Stamped:
     """Stamps of a batch: `seq` of its first sample, chip samples lost right before it, one
-    host-clock instant per sample, and the chip's sample period as fitted so far."""
+    host-clock instant per sample, and the chip's sample period as fitted so far.
+
+    `uncertain`: the batch follows a gap whose length the host's timing could not pin to one
+    count (the reads and the FIFO restart were timed too loosely, or the chip restarted): its
+    `lost_before`, and so its `first_seq`, are the sample clock's best estimate."""
 
     first_seq: int
     lost_before: int
     t_ns: npt.NDArray[np.int64]
     period_ns: float = 0.0
+    uncertain: bool = False
 
 
 @dataclass(slots=True)

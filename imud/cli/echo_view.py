@@ -130,6 +130,7 @@ class Samples:
 
     def _json(self, b: Batch, i: int, lost: int) -> str:
         from imud.channels import CHANNELS
+        from imud.wire import FLAG_GAP_UNCERTAIN
 
         flags = int(b.sample_flags[i])
         row: dict[str, Any] = {
@@ -142,6 +143,8 @@ class Samples:
             row["truth"] = True
         if lost:
             row["lost_before"] = lost
+            if b.flags & FLAG_GAP_UNCERTAIN:
+                row["lost_estimated"] = True  # the count may be off: docs/wire-format.md
         for ch, arr in b.channels.items():
             v = arr[i]
             if flags & int(ch):
