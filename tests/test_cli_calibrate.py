@@ -196,6 +196,7 @@ def test_gyro_bias_from_a_still_recording(tmp_path: Path) -> None:
     assert "[gyro]" in out.read_text()
 
 
+@pytest.mark.extra  # matplotlib
 def test_plot_draws_a_png(recording: tuple[Path, float], tmp_path: Path) -> None:
     png = tmp_path / "fit.png"
     r = imud("calibrate", "accel", "--from", str(recording[0]), "--dry-run", "--plot", str(png))
@@ -204,6 +205,7 @@ def test_plot_draws_a_png(recording: tuple[Path, float], tmp_path: Path) -> None
     assert "not written (--dry-run)" in r.stdout
 
 
+@pytest.mark.extra  # matplotlib
 def test_gyro_plot_shows_each_rotation(recording: tuple[Path, float], tmp_path: Path) -> None:
     png = tmp_path / "gyro.png"
     r = imud("calibrate", "gyro", "--from", str(recording[0]), "--dry-run", "--plot", str(png))
