@@ -389,7 +389,7 @@ def run_virtual(args: argparse.Namespace) -> None:
     all_data: dict[str, list[bytes]] = {}
     all_truth: dict[str, list[bytes]] = {}
     all_nv: Naive = {}
-    raw = tomllib.loads(bench_config(args.config, 7447, args.faults))
+    raw = tomllib.loads(bench_config(args.config, 7450, args.faults))
     print(
         f"virtual time, {args.settle:g} s settle + {args.duration:g} s, poll jitter "
         f"{args.jitter_us:g} us, faults {'on' if args.faults else 'off'}"

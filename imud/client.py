@@ -1,7 +1,7 @@
 """Client side of imud: decode batches into NumPy arrays and ask a daemon for its status.
 
 import imud.client as ic
-with ic.open_session("tcp/127.0.0.1:7447") as s:
+with ic.open_session("tcp/127.0.0.1:7450") as s:
     for batch in ic.batches(s, "imu0", limit=10):
         print(batch.t_ns, batch.accel)
 """

@@ -16,8 +16,10 @@ from collections.abc import Iterable
 # Zenoh's link protocols that take an address; `_IP` ones take HOST:PORT.
 PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream")
 _IP = {"tcp", "udp", "tls", "quic", "ws"}
-EXPECTED = "PROTOCOL/HOST:PORT like 'tcp/127.0.0.1:7447'"
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"  # where the daemon listens, and clients connect, by default
+EXPECTED = "PROTOCOL/HOST:PORT like 'tcp/127.0.0.1:7450'"
+# where the daemon listens, and clients connect, by default: not Zenoh's own 7447, where a ROS 2
+# machine's router (rmw_zenohd) or zenoh-bridge-ros2dds listens
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7450"
 
 _RUST_AT = re.compile(r"\s+at\s+\S*\.rs:\d+(?::\d+)?\.?")
 _LISTENER = re.compile(r"bound to (\S+?):?\s*\[")
@@ -84,7 +86,7 @@ def listen_problem(text: str, listen: Iterable[str] = ()) -> str | None:
         hint = "stop it, or change [zenoh] listen in the config"
     elif "cannot assign requested address" in low or "os error 99" in low:
         what = "that address is not on this machine"
-        hint = "change [zenoh] listen to one of its addresses, e.g. tcp/127.0.0.1:7447"
+        hint = "change [zenoh] listen to one of its addresses, e.g. tcp/127.0.0.1:7450"
     elif "permission denied" in low and "listen" in low:
         what = "permission denied (ports below 1024 need privileges)"
         hint = "change [zenoh] listen to a port above 1023"

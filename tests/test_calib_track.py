@@ -226,7 +226,7 @@ def test_the_runner_tracks_a_simulated_still_mpu6050_and_reports_it() -> None:
     # shown in `imud status`
     console = Console(width=200, record=True)
     st = rig.runner.status().to_json()
-    for r in status_view({"devices": [st]}, "tcp/127.0.0.1:7447", console):
+    for r in status_view({"devices": [st]}, "tcp/127.0.0.1:7450", console):
         console.print(r)
     text = console.export_text()
     assert "t0 gyro bias tracking: still" in text

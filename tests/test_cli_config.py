@@ -30,7 +30,7 @@ def test_check_config_prints_a_short_summary() -> None:
     assert len(lines) == 3 + 7  # headline, daemon, zenoh, one per device
     assert lines[0] == "configs/sim-all.toml: valid, 7 devices"
     assert lines[1].startswith("daemon:") and "realtime priority 20" in lines[1]
-    assert lines[2].startswith("zenoh:") and "tcp/127.0.0.1:7447" in lines[2]
+    assert lines[2].startswith("zenoh:") and "tcp/127.0.0.1:7450" in lines[2]
     assert "peer" in lines[2] and "'imud'" in lines[2]
     devices = {ln.split()[0]: ln for ln in lines[3:]}
     assert list(devices) == ["imu0", "imu1", "icm0", "bmi0", "stim0", "bno0", "adis0"]
@@ -68,7 +68,7 @@ def test_check_config_json_is_the_full_model() -> None:
     assert (doc["device"][3]["odr_hz"], doc["device"][3]["accel_odr_hz"]) == (2000, 1600.0)
     assert [d["bus"]["address"] for d in doc["device"][:2]] == [0x68, 0x69]
     assert doc["device"][2]["bus"]["transport"] == "spi"
-    assert doc["zenoh"]["listen"] == ["tcp/127.0.0.1:7447"]
+    assert doc["zenoh"]["listen"] == ["tcp/127.0.0.1:7450"]
     assert "Traceback" not in r.stderr
 
 
@@ -88,7 +88,7 @@ def test_check_config_prints_resolved_calibration_path(tmp_path: Path) -> None:
 def test_check_config_invalid_file(tmp_path: Path) -> None:
     bad = tmp_path / "bad.toml"
     bad.write_text(
-        '[zenoh]\nlisten = ["127.0.0.1:7447"]\n'
+        '[zenoh]\nlisten = ["127.0.0.1:7450"]\n'
         '[[device]]\nname = "imu0"\nchip = "mpu6050"\n'
         'bus = { kind = "i2c", bus = 1, address = 0x68 }\ngyro_range_dps = 300\n'
     )
@@ -101,7 +101,7 @@ def test_check_config_invalid_file(tmp_path: Path) -> None:
     problems = [ln.strip() for ln in lines[1:]]
     assert len(problems) == 2, r.stderr  # one line per problem
     assert any("device[0] 'imu0'" in p and "gyro_range_dps" in p and "300" in p for p in problems)
-    assert any("zenoh.listen" in p and "127.0.0.1:7447" in p for p in problems)
+    assert any("zenoh.listen" in p and "127.0.0.1:7450" in p for p in problems)
 
 
 def test_check_config_toml_syntax_error(tmp_path: Path) -> None:

@@ -36,7 +36,7 @@ def no_internals(text: str) -> None:
         ("foo", "PROTOCOL/HOST:PORT"),
         ("tcp/127.0.0.1:99999", "1-65535"),
         ("tcp/127.0.0.1", "HOST:PORT"),
-        ("127.0.0.1:7447", "PROTOCOL/HOST:PORT"),
+        ("127.0.0.1:7450", "PROTOCOL/HOST:PORT"),
     ],
 )
 def test_malformed_connect_is_a_usage_error(command: list[str], endpoint: str, says: str) -> None:

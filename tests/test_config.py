@@ -98,7 +98,7 @@ def test_quick_start_config_is_the_lighter_set() -> None:
     ]  # fmt: skip
     assert cfg.device[2].odr_hz == 8000.0
     assert cfg.daemon.realtime_priority == 20
-    assert cfg.zenoh.listen == ["tcp/127.0.0.1:7447"]
+    assert cfg.zenoh.listen == ["tcp/127.0.0.1:7450"]
 
 
 def test_sim_toml_loads_with_both_devices() -> None:
@@ -120,7 +120,7 @@ def test_sim_toml_loads_with_both_devices() -> None:
     assert (imu0.sim.seed, imu1.sim.seed) == (1, 2)
     assert imu0.sim.motion.kind == "still"
     assert imu1.sim.motion.kind == "poses"
-    assert cfg.zenoh.listen == ["tcp/127.0.0.1:7447"]
+    assert cfg.zenoh.listen == ["tcp/127.0.0.1:7450"]
     assert cfg.zenoh.prefix == "imud"
 
 
@@ -131,7 +131,7 @@ def test_minimal_device_gets_documented_defaults(tmp_path: Path) -> None:
     assert (d.gyro_range_dps, d.accel_range_g, d.dlpf_hz, d.odr_hz) == (500, 4, 188, 1000.0)
     assert d.calibration is None
     assert d.sim is None  # only simulated buses get a default [device.sim]
-    assert cfg.zenoh.listen == ["tcp/127.0.0.1:7447"]
+    assert cfg.zenoh.listen == ["tcp/127.0.0.1:7450"]
 
 
 def test_sim_bus_without_sim_table_gets_default_sim_settings(tmp_path: Path) -> None:
@@ -444,7 +444,7 @@ def test_calibration_for_another_chip_reported(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("key", ["listen", "connect"])
-@pytest.mark.parametrize("endpoint", ["127.0.0.1:7447", "http/127.0.0.1:80", "localhost"])
+@pytest.mark.parametrize("endpoint", ["127.0.0.1:7450", "http/127.0.0.1:80", "localhost"])
 def test_bad_zenoh_endpoint_rejected(tmp_path: Path, key: str, endpoint: str) -> None:
     msg = only_error(tmp_path, f'[zenoh]\n{key} = ["{endpoint}"]\n' + GOOD_DEVICE)
     assert f"zenoh.{key}" in msg
@@ -455,13 +455,13 @@ def test_bad_zenoh_endpoint_rejected(tmp_path: Path, key: str, endpoint: str) ->
 def test_good_zenoh_endpoints_accepted(tmp_path: Path) -> None:
     text = (
         '[zenoh]\nmode = "client"\n'
-        'listen = ["tcp/127.0.0.2:7447", "udp/[::1]:7447"]\n'
-        'connect = ["tcp/192.168.1.10:7447", "unixsock-stream//tmp/z.sock"]\n'
+        'listen = ["tcp/127.0.0.2:7450", "udp/[::1]:7450"]\n'
+        'connect = ["tcp/192.168.1.10:7450", "unixsock-stream//tmp/z.sock"]\n'
         'prefix = "robot1/imud"\n' + GOOD_DEVICE
     )
     cfg = load_text(tmp_path, text)
     assert cfg.zenoh.mode == "client"
-    assert cfg.zenoh.listen == ["tcp/127.0.0.2:7447", "udp/[::1]:7447"]
+    assert cfg.zenoh.listen == ["tcp/127.0.0.2:7450", "udp/[::1]:7450"]
     assert cfg.zenoh.connect[1] == "unixsock-stream//tmp/z.sock"
     assert cfg.zenoh.prefix == "robot1/imud"
 

@@ -40,6 +40,6 @@ def test_a_nak_prone_bus_counts_its_naks_as_such() -> None:
     assert st["bus_errors_eio"] == st["bus_errors_timeout"] == st["bus_errors_other"] == 0
     assert set(BUS_ERROR_KEYS.values()) <= st.keys() and "garbled_transfers" in st
     console = Console(width=200, record=True)
-    for r in status_view({"devices": [st]}, "tcp/127.0.0.1:7447", console):
+    for r in status_view({"devices": [st]}, "tcp/127.0.0.1:7450", console):
         console.print(r)
     assert f"bus errors by kind: nak {st['bus_errors_nak']}" in console.export_text()

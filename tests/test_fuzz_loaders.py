@@ -95,7 +95,7 @@ SCALARS = (
     | st.booleans()
     | st.text(max_size=12)
     | st.sampled_from(["sim", "i2c", "spi", "serial", "mpu6050", "bmi088", "icm42688p",
-                       "bno055", "stim300", "adis16465", "tcp/127.0.0.1:7447", "ndof", "still"])
+                       "bno055", "stim300", "adis16465", "tcp/127.0.0.1:7450", "ndof", "still"])
 )  # fmt: skip
 VALUES = st.recursive(
     SCALARS,

@@ -231,7 +231,7 @@ def example_for_test(certs: Path) -> tuple[dict[str, Any], str, str]:
     in place of its placeholders; everything else as shipped."""
     raw = tomllib.loads(EXAMPLE.read_text())
     tcp, tls_ep = f"tcp/127.0.0.1:{free_port()}", f"tls/127.0.0.1:{free_port()}"
-    assert raw["zenoh"]["listen"] == ["tcp/127.0.0.1:7447", "tls/127.0.0.1:7448"]
+    assert raw["zenoh"]["listen"] == ["tcp/127.0.0.1:7450", "tls/127.0.0.1:7451"]
     raw["zenoh"]["listen"] = [tcp, tls_ep]
     opts = raw["zenoh"]["options"]
     files = {"ca.pem": "ca.pem", "imud.pem": "imud.pem", "imud.key": "imud.key"}
