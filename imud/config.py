@@ -24,7 +24,12 @@ from imud import registry
 from imud.chips.api import DeviceBase
 from imud.configerrors import explain
 from imud.errors import ConfigError
+from imud.rosnames import join, name_problem, node_problem
 from imud.zerrors import DEFAULT_ENDPOINT, endpoint_problem
+
+# where a ROS 2 machine's Zenoh router (rmw_zenohd) or zenoh-bridge-ros2dds listens by default
+ROS_ROUTER = "tcp/127.0.0.1:7447"
+ROS_DOMAIN_MAX = 232  # the largest domain id ROS 2 allows (DDS's port mapping)
 
 
 class ZenohSettings(BaseModel):
@@ -83,6 +88,88 @@ class DaemonSettings(BaseModel):
     )
 
 
+Ros2Profile = Literal["rmw_zenoh", "bridge", "dds"]
+
+
+class Ros2Settings(BaseModel):
+    """`[ros2]`: every device as a ROS 2 publisher (docs/ros2.md). Off unless `enabled`."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    enabled: bool = False
+    profiles: list[Ros2Profile] = Field(
+        default_factory=lambda: list[Ros2Profile](["rmw_zenoh"]),
+        min_length=1,
+        description="rmw_zenoh: straight to ROS 2 nodes on rmw_zenoh; bridge: for "
+        "zenoh-bridge-ros2dds; dds: to DDS-based nodes (the dds extra: cyclonedds)",
+    )
+    domain_id: int | None = Field(
+        None, ge=0, le=ROS_DOMAIN_MAX, description="default: $ROS_DOMAIN_ID, else 0"
+    )
+    namespace: str = Field("/", description="topics: <namespace>/<device>/imu/data_raw ...")
+    node: str = Field("imud", description="the node name `ros2 node list` shows")
+    frame_id: str = Field("imu_link", description="header.frame_id (per device: [device.ros2])")
+    rate_hz: float = Field(
+        200.0,
+        gt=0.0,
+        description="at most this many messages a second per device; a faster chip's samples "
+        "are averaged over each interval",
+    )
+    temperature: bool = Field(False, description="also imu/temperature (sensor_msgs/Temperature)")
+    reliable: bool = Field(True, description="offer RELIABLE (a DDS reader of either kind matches)")
+    depth: int = Field(5, ge=1, le=1000, description="KEEP_LAST depth the publishers offer")
+    distro: Literal["humble", "jazzy", "kilted", "rolling"] = Field(
+        "jazzy", description="of the ROS 2 nodes: Humble's rmw_zenoh has no type hashes"
+    )
+    attachment: Literal["current", "key-value"] = Field(
+        "current",
+        description="rmw_zenoh's attachment layout: key-value for Jazzy 0.2.0-0.2.3 and Humble "
+        "0.1.0-0.1.1, current for every later one",
+    )
+    connect: list[str] = Field(
+        default_factory=lambda: [ROS_ROUTER],
+        description="the ROS machine's Zenoh router or bridge; joined to [zenoh] connect",
+    )
+
+    @field_validator("connect")
+    @classmethod
+    def _endpoints(cls, v: list[str]) -> list[str]:
+        problems = [p for p in map(endpoint_problem, v) if p]
+        if problems:
+            raise ValueError("; ".join(problems))
+        return v
+
+    @field_validator("namespace")
+    @classmethod
+    def _namespace(cls, v: str) -> str:
+        problem = name_problem(v, "namespace")
+        if problem:
+            raise ValueError(problem)
+        return v
+
+    @field_validator("node")
+    @classmethod
+    def _node(cls, v: str) -> str:
+        problem = node_problem(v)
+        if problem:
+            raise ValueError(problem)
+        return v
+
+    @field_validator("frame_id")
+    @classmethod
+    def _frame_id(cls, v: str) -> str:
+        if "\0" in v or not v.strip():
+            raise ValueError("frame_id must be a non-empty name without NUL, e.g. 'imu_link'")
+        return v
+
+    @field_validator("profiles")
+    @classmethod
+    def _unique_profiles(cls, v: list[Ros2Profile]) -> list[Ros2Profile]:
+        if len(set(v)) != len(v):
+            raise ValueError(f"profiles {v} names one twice")
+        return v
+
+
 class ImudConfig(BaseModel):
     """The whole file. `device` is validated as the union of the registered chips' models,
     discriminated on `chip` (see `config_model`); to the type checker it is `DeviceBase`."""
@@ -91,6 +178,7 @@ class ImudConfig(BaseModel):
 
     daemon: DaemonSettings = Field(default_factory=DaemonSettings)
     zenoh: ZenohSettings = Field(default_factory=ZenohSettings)
+    ros2: Ros2Settings = Field(default_factory=Ros2Settings)
     device: list[DeviceBase] = Field(min_length=1)
 
     @model_validator(mode="after")
@@ -131,6 +219,27 @@ class ImudConfig(BaseModel):
                 )
             if d.bus.simulated and d.sim is None:
                 d.sim = _default_sim()
+            rate = d.ros2.rate_hz
+            if rate is not None and rate > d.odr_hz:
+                raise ValueError(
+                    f"device[{i}] {d.name!r}: ros2.rate_hz = {rate:g} is above its odr_hz "
+                    f"({d.odr_hz:g}): ROS 2 gets at most one message a sample; set it to "
+                    f"{d.odr_hz:g} or less"
+                )
+        topics: dict[str, str] = {}
+        for d in self.device:
+            if not d.ros2.enabled:
+                continue
+            where = join(self.ros2.namespace, d.ros2.namespace or d.name)
+            problem = name_problem(where + "/imu/data_raw")
+            if problem:
+                raise ValueError(f"device {d.name!r}: its ROS 2 topics: {problem}")
+            if where in topics:
+                raise ValueError(
+                    f"devices {topics[where]!r} and {d.name!r} would both publish under "
+                    f"{where}: give one a [device.ros2] namespace of its own"
+                )
+            topics[where] = d.name
         return self
 
 

@@ -6,7 +6,9 @@ holds them) and are read by the pipeline stage each belongs to.
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from imud.rosnames import name_problem
 
 
 class GyroBiasTracking(BaseModel):
@@ -32,3 +34,37 @@ class GyroBiasTracking(BaseModel):
         description="a still window's mean gyro must be below this (after calibration): a "
         "steady turn slower than it about the vertical cannot be told from bias",
     )
+
+
+class DeviceRos2(BaseModel):
+    """`[device.ros2]`: this device's ROS 2 topics, when `[ros2]` is on. Unset fields take
+    `[ros2]`'s."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    enabled: bool = True
+    namespace: str | None = Field(
+        None,
+        description="where its topics go under [ros2] namespace: '/<namespace>/imu/data_raw' "
+        "(default: the device's name)",
+    )
+    frame_id: str | None = Field(None, description="header.frame_id (default: [ros2] frame_id)")
+    rate_hz: float | None = Field(
+        None, gt=0.0, description="at most this many messages a second (default: [ros2] rate_hz)"
+    )
+
+    @field_validator("namespace")
+    @classmethod
+    def _namespace(cls, v: str | None) -> str | None:
+        if v is not None:
+            problem = name_problem("/" + v.strip("/") if v.strip("/") else "/", "namespace")
+            if problem:
+                raise ValueError(problem)
+        return v
+
+    @field_validator("frame_id")
+    @classmethod
+    def _frame_id(cls, v: str | None) -> str | None:
+        if v is not None and ("\0" in v or not v.strip()):
+            raise ValueError("frame_id must be a non-empty name without NUL, e.g. 'imu_link'")
+        return v

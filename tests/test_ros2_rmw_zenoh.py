@@ -10,7 +10,7 @@ import pytest
 import zenoh.ext as zext
 
 from imud.ros2 import rmw_zenoh as rz
-from imud.ros2.names import join, name_problem, node_problem
+from imud.rosnames import join, name_problem, node_problem
 
 # rmw_zenoh docs/design.md, a talker's publisher token; its GID as rmw_zenoh computes it
 # (XXH3-128, low then high 64 bits little-endian), measured in the reference note

@@ -15,7 +15,9 @@ def name_problem(name: str, what: str = "topic") -> str | None:
     """Why `name` is not a fully qualified ROS 2 topic name or namespace ('/' alone is the
     root namespace), or None."""
     if not name.startswith("/"):
-        return f"{what} {name!r} must be absolute (start with '/'): e.g. '/{name}'"
+        also = name_problem("/" + name, what)
+        head = f"{what} {name!r} must be absolute (start with '/')"
+        return f"{head}; and as '/{name}': {also}" if also else f"{head}: e.g. '/{name}'"
     if name == "/":
         return None if what == "namespace" else f"{what} '/' names nothing; e.g. '/imu/data'"
     if name.endswith("/"):
