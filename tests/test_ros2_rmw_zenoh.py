@@ -1,6 +1,7 @@
-"""What imud puts before rmw_zenoh, checked against rules and vectors written down from its
-sources (../shared/reference/ros2-mcap-foxglove.md §1) and against Zenoh's own serialiser, never
-against imud's code: the parsers here are the test's own."""
+"""What imud puts before rmw_zenoh, checked against rules and vectors written down from
+rmw_zenoh's sources (liveliness_utils.cpp, attachment_helpers.cpp, qos.cpp, its design document)
+and against Zenoh's own serialiser, never against imud's code: the parsers here are the test's
+own."""
 
 from __future__ import annotations
 
@@ -12,8 +13,8 @@ import zenoh.ext as zext
 from imud.ros2 import rmw_zenoh as rz
 from imud.rosnames import join, name_problem, node_problem
 
-# rmw_zenoh docs/design.md, a talker's publisher token; its GID as rmw_zenoh computes it
-# (XXH3-128, low then high 64 bits little-endian), measured in the reference note
+# rmw_zenoh's design document, a talker's publisher token; its GID as rmw_zenoh computes it
+# (XXH3-128, low then high 64 bits little-endian), computed with xxhash by hand once
 DESIGN_TALKER = (
     "@ros2_lv/0/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/"
     "std_msgs::msg::dds_::String_/"

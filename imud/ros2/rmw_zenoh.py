@@ -1,8 +1,8 @@
 """What rmw_zenoh (the ROS 2 RMW on Zenoh) expects of a publisher, so that ROS 2 nodes on it
 receive imud's messages and `ros2 topic list` / `ros2 node list` see imud.
 
-Facts from rmw_zenoh's sources (liveliness_utils.cpp, attachment_helpers.cpp, qos.cpp,
-docs/design.md; docs/ros2.md says which versions):
+Facts from rmw_zenoh's sources (liveliness_utils.cpp, attachment_helpers.cpp, qos.cpp and its
+design document; docs/ros2.md says which versions):
 
 - Data key: `<domain>/<topic without its leading '/'>/<pkg>::msg::dds_::<Type>_/<type hash>`;
   the type hash is RIHS01 (Iron and later) or the constant `TypeHashNotSupported` (Humble).
