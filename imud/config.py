@@ -181,6 +181,15 @@ class ImudConfig(BaseModel):
     ros2: Ros2Settings = Field(default_factory=Ros2Settings)
     device: list[DeviceBase] = Field(min_length=1)
 
+    def session_settings(self) -> ZenohSettings:
+        """`[zenoh]` as the daemon's session uses it: with `[ros2] connect` joined when a ROS 2
+        profile that goes through Zenoh is on."""
+        s, r = self.zenoh, self.ros2
+        if not (r.enabled and {"rmw_zenoh", "bridge"} & set(r.profiles)):
+            return s
+        extra = [e for e in r.connect if e not in s.connect]
+        return s.model_copy(update={"connect": [*s.connect, *extra]})
+
     @model_validator(mode="after")
     def _unique(self) -> ImudConfig:
         names: dict[str, int] = {}

@@ -46,6 +46,7 @@ from imud.clock import epoch_offset_ns
 from imud.config import ImudConfig, load_config
 from imud.errors import ConfigError
 from imud.reload import ConfigFile, ReloadPlan, by_bus, plan_reload
+from imud.ros2.output import DomainError, Ros2Output, domain_id
 from imud.sdnotify import Notifier
 from imud.status import DeviceState
 from imud.wire import VERSION
@@ -131,6 +132,8 @@ class Daemon:
         self.reloads = 0
         self.last_reload_at: float | None = None
         self.restart_needed: str | None = None
+        self.ros2: Ros2Output | None = None  # the ROS 2 output, when [ros2] is on
+        self.ros2_error: str | None = None  # why it is not running although on
 
     def request_stop(self) -> None:
         """Stop as on SIGTERM (for embedding and tests); safe from any thread."""
@@ -164,7 +167,36 @@ class Daemon:
             "restart_needed": self.restart_needed,
             "buses": buses,
             "devices": [v.status().to_json() for v in self.views],
+            "ros2": self._ros2_status(),
         }
+
+    def _ros2_status(self) -> dict[str, Any] | None:
+        r = self.cfg.ros2
+        if not r.enabled:
+            return None
+        out = self.ros2
+        return {
+            "profiles": list(r.profiles),
+            "domain_id": out.domain if out is not None else None,
+            "node": r.node,
+            "topics": out.topics() if out is not None else [],
+            "error": self.ros2_error,
+        }
+
+    def _start_ros2(self, session: zenoh.Session, cfg: ImudConfig) -> None:
+        """The ROS 2 output on `session` for `cfg` (closing the one before): off when `[ros2]`
+        is; when it cannot start, the daemon runs on without it and says why in status."""
+        if self.ros2 is not None:
+            self.ros2.close()
+            self.ros2 = None
+        self.ros2_error = None
+        if not cfg.ros2.enabled:
+            return
+        try:
+            self.ros2 = Ros2Output(cfg, session)
+        except (DomainError, zenoh.ZError) as e:
+            self.ros2_error = str(e)
+            log.error("ROS 2 output not started: %s", e)
 
     # --- Zenoh side -----------------------------------------------------------------------------
     def _declare(self, session: zenoh.Session, prefix: str, d: DeviceBase) -> _Endpoints:
@@ -199,6 +231,12 @@ class Daemon:
             pub = ends.pubs.get(stream) if ends is not None else None
             if pub is not None:
                 pub.put(payload)
+            out = self.ros2
+            if out is not None and stream is Stream.DATA:
+                try:
+                    out.batch(name, payload)
+                except Exception:  # a bug there must not cost the native stream
+                    log.exception("%s: ROS 2 output failed on a batch", name)
 
         return put
 
@@ -246,7 +284,7 @@ class Daemon:
         return answer
 
     async def run(self) -> int:
-        z = self.cfg.zenoh
+        z = self.cfg.session_settings()
         log.info(
             "imud %s starting: %d device(s), Zenoh %s on %s",
             __version__,
@@ -262,6 +300,7 @@ class Daemon:
             # waiting for "no device starting" would otherwise take an empty list for done)
             self.links = self._make_links(self.cfg, by_bus(self.cfg))
             self._declare_all(self.session, self.cfg)
+            self._start_ros2(self.session, self.cfg)
             # Everything built so far lives as long as the daemon: move it out of the cyclic
             # collector's sight, so a full collection cannot stall a bus worker for milliseconds
             # (a 32 kHz FIFO overflows after 4 ms). The default thresholds stay: they keep each
@@ -285,6 +324,8 @@ class Daemon:
             for ends in self._ends.values():
                 ends.undeclare()
         finally:
+            if self.ros2 is not None:
+                self.ros2.close()
             await anyio.to_thread.run_sync(self.session.close)
             if self.zygote is not None:
                 self.zygote.close()
@@ -337,7 +378,9 @@ class Daemon:
         try:
             new = await anyio.to_thread.run_sync(load_config, self.config_path)
             daemon_config(new.zenoh)  # the `options` are Zenoh's to judge: before anything moves
-        except (ConfigError, ZenohSetupError) as e:
+            if new.ros2.enabled:
+                domain_id(new.ros2)  # $ROS_DOMAIN_ID too: before anything moves
+        except (ConfigError, ZenohSetupError, DomainError) as e:
             return self._refused(str(e))
         plan = plan_reload(self.cfg, new)
         log.info("config reload (%s): %s", why, plan.describe())
@@ -365,7 +408,15 @@ class Daemon:
             if gone is not None:
                 gone.undeclare()
             self._raw_on.discard(name)
-        self.cfg = self.cfg.model_copy(update={"device": new.device, "zenoh": new.zenoh})
+        ros2_was = self.cfg.ros2
+        self.cfg = self.cfg.model_copy(
+            update={"device": new.device, "zenoh": new.zenoh, "ros2": new.ros2}
+        )
+        assert self.session is not None
+        if plan.zenoh_changed or new.ros2 != ros2_was or self.ros2 is None:
+            self._start_ros2(self.session, self.cfg)
+        else:
+            self.ros2.reconfigure(self.cfg)
         self.restart_needed = (
             "[daemon] settings changed: they take effect when the daemon restarts"
             if new.daemon != self.cfg.daemon
@@ -379,6 +430,9 @@ class Daemon:
     async def _close_session(self) -> None:
         session, ends, q = self.session, self._ends, self._daemon_q
         self._ends, self._daemon_q = {}, None
+        if self.ros2 is not None:
+            self.ros2.close()
+            self.ros2 = None
         for e in ends.values():
             e.undeclare()
         if q is not None:
@@ -400,11 +454,15 @@ class Daemon:
         if shared:
             await self._close_session()
         try:
-            session = await anyio.to_thread.run_sync(zenoh.open, daemon_config(new.zenoh))
+            session = await anyio.to_thread.run_sync(
+                zenoh.open, daemon_config(new.session_settings())
+            )
         except Exception as e:  # e.g. a new listen port is taken
             why = f"[zenoh]: cannot open the new session: {describe(e, new.zenoh.listen)}"
             if shared:  # back to the old settings, which held until a moment ago
-                back = await anyio.to_thread.run_sync(zenoh.open, daemon_config(old.zenoh))
+                back = await anyio.to_thread.run_sync(
+                    zenoh.open, daemon_config(old.session_settings())
+                )
                 self._declare_all(back, old)
             return why
         if shared:

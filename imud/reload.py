@@ -128,7 +128,7 @@ class ReloadPlan:
 
 def plan_reload(old: ImudConfig, new: ImudConfig) -> ReloadPlan:
     plan = ReloadPlan(
-        zenoh_changed=old.zenoh != new.zenoh,
+        zenoh_changed=old.session_settings() != new.session_settings(),
         daemon_changed=old.daemon != new.daemon,
     )
     before = {d.name: d for d in old.device}

@@ -1,0 +1,287 @@
+"""The daemon's ROS 2 output: each device's relayed batches as sensor_msgs messages, on the
+profiles `[ros2]` names (docs/ros2.md).
+
+Fed from the bus links' relay threads (`batch`), one device's batches always from the same
+thread, in order; never on a bus worker. A device's state (its decimator, its publishers' sequence
+numbers, its last stamp) is touched only by its own relay thread; `reconfigure` runs on the
+event loop and swaps whole `_Device` objects, so a batch sees either the old or the new one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import zenoh
+
+from imud.channels import Channel
+from imud.ros2 import rmw_zenoh as rz
+from imud.ros2.cdr import Layout, layout, messages
+from imud.ros2.decimate import Decimator, factor
+from imud.rosnames import join
+from imud.wire import KIND_SAMPLES, WireError, decode
+
+if TYPE_CHECKING:
+    from imud.chips.api import DeviceBase
+    from imud.config import ImudConfig, Ros2Settings
+
+log = logging.getLogger("imud.ros2")
+
+IMU = "sensor_msgs/msg/Imu"
+MAG = "sensor_msgs/msg/MagneticField"
+TEMPERATURE = "sensor_msgs/msg/Temperature"
+NO_ORIENTATION = np.r_[-1.0, np.zeros(8)]  # REP-145: orientation_covariance[0] = -1
+UNKNOWN = np.zeros(9)  # covariance not known (REP-145)
+
+
+class DomainError(ValueError):
+    pass
+
+
+def domain_id(s: Ros2Settings, env: dict[str, str] | None = None) -> int:
+    """`[ros2] domain_id`, else $ROS_DOMAIN_ID, else 0. Raises `DomainError` naming a bad
+    environment value."""
+    if s.domain_id is not None:
+        return s.domain_id
+    raw = (os.environ if env is None else env).get("ROS_DOMAIN_ID", "").strip()
+    if not raw:
+        return 0
+    if not raw.isdigit() or int(raw) > 232:
+        raise DomainError(
+            f"ROS_DOMAIN_ID={raw!r} is not a ROS 2 domain id (0-232): fix the environment, or "
+            "set [ros2] domain_id"
+        )
+    return int(raw)
+
+
+@dataclass
+class _Topic:
+    """One ROS 2 topic of a device on every profile it goes out on."""
+
+    name: str
+    type_name: str
+    layout: Layout
+    rmw: Any = None  # zenoh.Publisher on rmw_zenoh's key
+    bridge: Any = None  # zenoh.Publisher on the bridge's key
+    token: Any = None  # zenoh.LivelinessToken
+    token_key: str = ""
+    gid: bytes = b""
+    sent: int = 0  # messages put
+
+
+@dataclass
+class _Device:
+    cfg: DeviceBase
+    decimator: Decimator
+    topics: dict[str, _Topic] = field(default_factory=dict)
+    last_ns: int = -1  # stamps never step back (a bus restarted, a reload)
+    dropped: int = 0
+
+
+class Ros2Output:
+    def __init__(self, cfg: ImudConfig, session: zenoh.Session) -> None:
+        self.settings = cfg.ros2
+        self.session = session
+        self.domain = domain_id(cfg.ros2)
+        self.zid = str(session.info.zid())
+        self._ids = iter(range(1, 1 << 31))  # entity ids, unique within this session
+        self._node = session.liveliness().declare_token(
+            rz.node_token(self.domain, self.zid, 0, self.settings.namespace, self.settings.node)
+        )
+        self._sent: dict[str, int] = {}  # token -> messages put, kept across reconfigures
+        self._devices: dict[str, _Device] = {}
+        self._lock = threading.Lock()  # declaring and undeclaring (event loop) only
+        self.reconfigure(cfg)
+
+    # --- what goes out ------------------------------------------------------------------------
+    def reconfigure(self, cfg: ImudConfig) -> None:
+        """Publishers for `cfg`'s devices: a device whose ROS 2 side is unchanged keeps its
+        publishers and state; others get new ones (their sequence numbers go on)."""
+        with self._lock:
+            old = self._devices
+            new: dict[str, _Device] = {}
+            for d in cfg.device:
+                if not d.ros2.enabled:
+                    continue
+                prev = old.get(d.name)
+                if prev is not None and _same(prev.cfg, d):
+                    new[d.name] = prev
+                    continue
+                dev = self._device(d)
+                if prev is not None:
+                    dev.last_ns = prev.last_ns
+                new[d.name] = dev
+            self._devices = new
+            for name, dev in old.items():
+                if new.get(name) is not dev:
+                    self._undeclare(dev)
+
+    def _device(self, d: DeviceBase) -> _Device:
+        from imud import registry  # the chip's channels: what topics it has
+
+        s = self.settings
+        channels = Channel(registry.CHIPS[d.chip].channels)
+        rate = d.ros2.rate_hz or s.rate_hz
+        dev = _Device(d, Decimator(factor(d.odr_hz, rate)))
+        where = join(s.namespace, d.ros2.namespace or d.name)
+        frame = d.ros2.frame_id or s.frame_id
+        wanted: list[tuple[str, str]] = []
+        if channels & (Channel.ACCEL | Channel.GYRO):
+            wanted.append(("imu/data_raw", IMU))
+        if channels & Channel.ORIENTATION:
+            wanted.append(("imu/data", IMU))
+        if channels & Channel.MAG:
+            wanted.append(("imu/mag", MAG))
+        if s.temperature and channels & Channel.TEMPERATURE:
+            wanted.append(("imu/temperature", TEMPERATURE))
+        for rel, type_name in wanted:
+            topic = _Topic(join(where, rel), type_name, layout(type_name, frame))
+            self._declare(topic)
+            dev.topics[rel] = topic
+        return dev
+
+    def _declare(self, t: _Topic) -> None:
+        s = self.settings
+        type_hash = rz.NO_TYPE_HASH if s.distro == "humble" else rz.TYPE_HASHES[t.type_name]
+        if "rmw_zenoh" in s.profiles:
+            qos = rz.Qos(reliable=s.reliable, depth=s.depth)
+            t.token_key = rz.publisher_token(
+                self.domain, self.zid, 0, next(self._ids), s.namespace, s.node, t.name,
+                t.type_name, type_hash, qos,
+            )  # fmt: skip
+            t.gid = rz.gid(t.token_key)
+            # a new publisher of the same topic (a reload) continues its predecessor's numbers,
+            # so subscribers count no loss; a GID is per token, so both are per topic here
+            t.sent = self._sent.get(t.name, 0)
+            t.rmw = self.session.declare_publisher(
+                rz.data_key(self.domain, t.name, t.type_name, type_hash),
+                congestion_control=zenoh.CongestionControl.DROP,  # as rmw_zenoh's KEEP_LAST
+                reliability=zenoh.Reliability.RELIABLE
+                if s.reliable
+                else zenoh.Reliability.BEST_EFFORT,
+            )
+            t.token = self.session.liveliness().declare_token(t.token_key)
+        if "bridge" in s.profiles:
+            # zenoh-bridge-ros2dds routes a ROS topic to the key of its name without the '/'
+            t.bridge = self.session.declare_publisher(
+                t.name.lstrip("/"), congestion_control=zenoh.CongestionControl.DROP
+            )
+
+    def _undeclare(self, dev: _Device) -> None:
+        for t in dev.topics.values():
+            self._sent[t.name] = t.sent
+            for ent in (t.rmw, t.bridge, t.token):
+                if ent is not None:
+                    with contextlib.suppress(zenoh.ZError):  # the session is closing
+                        ent.undeclare()
+
+    def topics(self) -> list[str]:
+        """Every topic published, for status."""
+        return sorted(t.name for d in self._devices.values() for t in d.topics.values())
+
+    def close(self) -> None:
+        with self._lock:
+            for dev in self._devices.values():
+                self._undeclare(dev)
+            self._devices = {}
+            with contextlib.suppress(zenoh.ZError):
+                self._node.undeclare()  # type: ignore[no-untyped-call]
+
+    # --- the batches --------------------------------------------------------------------------
+    def batch(self, name: str, payload: bytes | memoryview) -> None:
+        """One relayed wire batch of device `name`."""
+        dev = self._devices.get(name)
+        if dev is None:
+            return
+        try:
+            b = decode(bytes(payload))
+        except WireError:
+            log.exception("%s: a batch the ROS 2 output cannot read", name)
+            return
+        if b.kind != KIND_SAMPLES or not b.count:
+            return
+        chans: dict[str, Any] = {}
+        for ch, key in _FIELDS.items():
+            a = b.channels.get(ch)
+            if a is not None:
+                chans[key] = a.astype(np.float64)
+        if "orientation" in chans:  # w, x, y, z on the wire; x, y, z, w in ROS
+            chans["orientation"] = chans["orientation"][:, [1, 2, 3, 0]]
+        out = dev.decimator.feed(b.seq, b.t_ns, chans)
+        if not out.n:
+            return
+        t = out.t_ns
+        keep = t > dev.last_ns
+        if not keep.all():
+            dev.dropped += int(np.count_nonzero(~keep))
+            t = t[keep]
+            out.channels = {k: v[keep] for k, v in out.channels.items()}
+            if not t.size:
+                return
+        dev.last_ns = int(t[-1])
+        self._publish(dev, t, out.channels)
+
+    def _publish(self, dev: _Device, t: Any, c: dict[str, Any]) -> None:
+        n = t.shape[0]
+        zeros3 = np.zeros((n, 3))
+        raw = dev.topics.get("imu/data_raw")
+        if raw is not None:
+            fields = {
+                "orientation": np.zeros(4),
+                "orientation_covariance": NO_ORIENTATION,
+                "angular_velocity": c.get("angular_velocity", zeros3),
+                "angular_velocity_covariance": UNKNOWN,
+                "linear_acceleration": c.get("linear_acceleration", zeros3),
+                "linear_acceleration_covariance": UNKNOWN,
+            }
+            self._put(raw, messages(raw.layout, t, fields))
+        fused = dev.topics.get("imu/data")
+        if fused is not None and "orientation" in c:
+            fields = {
+                "orientation": c["orientation"],
+                "orientation_covariance": UNKNOWN,
+                "angular_velocity": c.get("angular_velocity", zeros3),
+                "angular_velocity_covariance": UNKNOWN,
+                "linear_acceleration": c.get("linear_acceleration", zeros3),
+                "linear_acceleration_covariance": UNKNOWN,
+            }
+            self._put(fused, messages(fused.layout, t, fields))
+        mag = dev.topics.get("imu/mag")
+        if mag is not None and "magnetic_field" in c:
+            fields = {"magnetic_field": c["magnetic_field"], "magnetic_field_covariance": UNKNOWN}
+            self._put(mag, messages(mag.layout, t, fields))
+        temp = dev.topics.get("imu/temperature")
+        if temp is not None and "temperature" in c:
+            fields = {"temperature": c["temperature"], "variance": 0.0}
+            self._put(temp, messages(temp.layout, t, fields))
+
+    def _put(self, t: _Topic, records: Any) -> None:
+        form = rz.Attachment(self.settings.attachment)
+        now = time.time_ns()
+        for r in records:
+            payload = r.tobytes()
+            if t.rmw is not None:
+                t.sent += 1
+                t.rmw.put(payload, attachment=rz.attachment(t.sent, now, t.gid, form))
+            if t.bridge is not None:
+                t.bridge.put(payload)
+
+
+_FIELDS = {
+    Channel.ACCEL: "linear_acceleration",
+    Channel.GYRO: "angular_velocity",
+    Channel.MAG: "magnetic_field",
+    Channel.ORIENTATION: "orientation",
+    Channel.TEMPERATURE: "temperature",
+}
+
+
+def _same(a: DeviceBase, b: DeviceBase) -> bool:
+    """The same ROS 2 side: chip, rate and ROS settings."""
+    return (a.chip, a.odr_hz, a.ros2) == (b.chip, b.odr_hz, b.ros2)
