@@ -22,17 +22,27 @@ def imud(*args: str, cwd: Path = REPO) -> subprocess.CompletedProcess[str]:
     )
 
 
+def test_check_config_names_the_ros2_side_and_the_router_it_joins() -> None:
+    r = imud("check-config", "configs/sim-ros2.toml")
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert "connect tcp/127.0.0.1:7447" in lines[2] and "listen tcp/127.0.0.1:7450" in lines[2]
+    assert lines[3].startswith("ros2: rmw_zenoh (jazzy), domain $ROS_DOMAIN_ID or 0")
+    assert "/imud/bno0/imu/..." in lines[3]
+
+
 def test_check_config_prints_a_short_summary() -> None:
     r = imud("check-config", "configs/sim-all.toml")
     assert r.returncode == 0, r.stderr
     assert "Traceback" not in r.stderr
     lines = r.stdout.splitlines()
-    assert len(lines) == 3 + 7  # headline, daemon, zenoh, one per device
+    assert len(lines) == 4 + 7  # headline, daemon, zenoh, ros2, one per device
     assert lines[0] == "configs/sim-all.toml: valid, 7 devices"
     assert lines[1].startswith("daemon:") and "realtime priority 20" in lines[1]
     assert lines[2].startswith("zenoh:") and "tcp/127.0.0.1:7450" in lines[2]
     assert "peer" in lines[2] and "'imud'" in lines[2]
-    devices = {ln.split()[0]: ln for ln in lines[3:]}
+    assert lines[3] == "ros2: off"
+    devices = {ln.split()[0]: ln for ln in lines[4:]}
     assert list(devices) == ["imu0", "imu1", "icm0", "bmi0", "stim0", "bno0", "adis0"]
     imu0 = devices["imu0"].split()
     assert imu0[:3] == ["imu0", "mpu6050", "sim-i2c:sim0@0x68"]  # hex, not 104

@@ -14,7 +14,7 @@ def config_summary(cfg: ImudConfig, path: str) -> list[str]:
     from imud.buses.models import describe
 
     n = len(cfg.device)
-    d, z = cfg.daemon, cfg.zenoh
+    d, z = cfg.daemon, cfg.session_settings()
     rt = f"realtime priority {d.realtime_priority}" if d.realtime_priority else "no realtime"
     lines = [
         f"{path}: valid, {n} device{'s' if n != 1 else ''}",
@@ -28,6 +28,7 @@ def config_summary(cfg: ImudConfig, path: str) -> list[str]:
             else ""
         ),
     ]
+    lines.append(_ros2_line(cfg))
     rows = []
     for dev in cfg.device:
         ranges = []
@@ -56,3 +57,18 @@ def config_summary(cfg: ImudConfig, path: str) -> list[str]:
     for r in rows:
         lines.append("  " + "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip())
     return lines
+
+
+def _ros2_line(cfg: ImudConfig) -> str:
+    r = cfg.ros2
+    if not r.enabled:
+        return "ros2: off"
+    from imud.rosnames import join
+
+    domain = str(r.domain_id) if r.domain_id is not None else "$ROS_DOMAIN_ID or 0"
+    on = [d for d in cfg.device if d.ros2.enabled]
+    where = ", ".join(join(r.namespace, d.ros2.namespace or d.name) + "/imu/..." for d in on)
+    return (
+        f"ros2: {' + '.join(r.profiles)} ({r.distro}), domain {domain}, node {r.node!r}, "
+        f"at most {r.rate_hz:g} Hz, router {', '.join(r.connect)}; topics {where or 'none'}"
+    )
