@@ -69,8 +69,12 @@ class Decimator:
         if n == 0:
             return Decimated(t_ns, channels, np.zeros(0, dtype=np.int64))
         groups = seq // self.k
-        starts = np.flatnonzero(np.r_[True, groups[1:] != groups[:-1]])
-        ends = np.r_[starts[1:], n]
+        edge = np.empty(n, dtype=np.bool_)
+        edge[0] = True
+        np.not_equal(groups[1:], groups[:-1], out=edge[1:])
+        starts = np.flatnonzero(edge)
+        ends = np.empty_like(starts)
+        ends[:-1], ends[-1] = starts[1:], n
         done = len(starts)
         if seq[-1] % self.k != self.k - 1:  # the last group may get more members
             last = int(starts[-1])
@@ -96,15 +100,17 @@ class Decimator:
 def _mean(name: str, a: F64, starts: I64, members: I64) -> F64:
     if name == "orientation":
         a = _one_hemisphere(a, starts, members)
-    ok = ~np.isnan(a)
-    total = np.add.reduceat(np.where(ok, a, 0.0), starts, axis=0)
-    count = np.add.reduceat(ok.astype(np.int64), starts, axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean: F64 = total / count
+    nan = np.isnan(a)
+    if not nan.any():  # the usual case: a plain mean
+        count: npt.NDArray[np.int64] = members if a.ndim == 1 else members[:, None]
+        mean: F64 = np.add.reduceat(a, starts, axis=0) / count
+    else:
+        total = np.add.reduceat(np.where(nan, 0.0, a), starts, axis=0)
+        valid = np.add.reduceat((~nan).astype(np.int64), starts, axis=0)
+        mean = np.divide(total, valid, out=np.full_like(total, np.nan), where=valid > 0)
     if name == "orientation":
         norm = np.linalg.norm(mean, axis=1, keepdims=True)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean = mean / norm
+        mean = np.divide(mean, norm, out=np.full_like(mean, np.nan), where=norm > 0)
     return mean
 
 
