@@ -770,9 +770,16 @@ def test_mpu6050_fifo_record_held_by_the_driver() -> None:
 # -------------------------------------------------------------------------------------------------
 # completeness: what the driver side uses, and every member of the map's enums, has a fact
 # -------------------------------------------------------------------------------------------------
+# a chip's datasheet facts the simulator shares besides its register map: its noise figures
+# (noise.py), the one source of the noise it draws and of the ROS 2 covariances
+SHARED_FACTS = ("registers", "noise")
+
+
 def _driver_side_files(chip: str) -> list[Path]:
-    """Every module of the chip's package except its register map and its simulator."""
-    return sorted(p for p in (CHIPS_DIR / chip).glob("*.py") if p.stem not in ("registers", "sim"))
+    """Every module of the chip's package except its shared facts and its simulator."""
+    return sorted(
+        p for p in (CHIPS_DIR / chip).glob("*.py") if p.stem not in (*SHARED_FACTS, "sim")
+    )
 
 
 def _is_class(regs: ModuleType, path: tuple[str, ...] | None) -> bool:
@@ -965,9 +972,9 @@ def test_every_chip_has_a_fact_section_and_a_simulator() -> None:
 def test_simulator_imports_only_its_register_map(chip: str) -> None:
     modname = f"imud.chips.{chip}.sim"
     imported = _imud_imports(CHIPS_DIR / chip / "sim.py", modname)
-    allowed = GENERIC_SIM_IMPORTS | {f"imud.chips.{chip}.registers"}
+    allowed = GENERIC_SIM_IMPORTS | {f"imud.chips.{chip}.{m}" for m in SHARED_FACTS}
     bad = sorted(m for m in imported if m not in allowed and not m.startswith("imud.sim"))
-    assert bad == [], f"{modname} imports beyond its register map and the generic modules"
+    assert bad == [], f"{modname} imports beyond its register map, noise figures and generics"
     assert f"imud.chips.{chip}.registers" in imported
 
 

@@ -8,7 +8,8 @@ probe one with `getattr`:
 - `DeviceBase`: the config fields every device has, `odr_hz` (the published rate) among them,
   and `die_buses()` (where each die is wired);
 - `ChipSpec`: the config model, the bus kinds, the dies (`Die`: SPI dummy bytes), the channels the
-  published stream carries, and the driver and simulator factories;
+  published stream carries, the driver and simulator factories, and the device's noise at its
+  settings (`NoiseFigures`, for the ROS 2 covariances);
 - `Driver`: bytes on a bus to a `RawBatch` of raw channels, with either host-time read brackets
   (`FifoRead`: the pipeline fits the chip's sample clock to them) or stamps of its own (`Stamped`:
   a chip of several dies on several clocks stamps each die itself);
@@ -23,6 +24,7 @@ SPI framing, e.g. 16-bit words), or a `SerialPort` on a serial bus.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -207,6 +209,34 @@ class Driver(Protocol):
 
 # --- the registry entry ------------------------------------------------------------------------
 @dataclass(frozen=True, slots=True)
+class NoiseFigures:
+    """A device's white noise at its configured settings, in SI units: what its ROS 2 messages'
+    covariances are made of (imud.ros2.covariance, docs/ros2.md "Covariances").
+
+    Each density is one-sided (a datasheet's: RMS = density * sqrt(noise bandwidth)) and each
+    bandwidth the noise-equivalent bandwidth of one published sample at the configured filter and
+    rate, so one sample's variance is density^2 * bandwidth. The magnetometer, for a chip that has
+    one, is a per-sample standard deviation; `mag_hold` is how many published samples each of its
+    readings lasts (a magnetometer slower than the published rate repeats its value)."""
+
+    accel_density: float  # m/s^2/sqrt(Hz)
+    accel_bandwidth_hz: float
+    gyro_density: float  # rad/s/sqrt(Hz)
+    gyro_bandwidth_hz: float
+    mag_sigma_t: float | None = None  # tesla, per sample and axis
+    mag_hold: int = 1
+
+    def __post_init__(self) -> None:
+        # a zero would publish "covariance unknown" for a noise the chip's spec claims to know
+        values = [self.accel_density, self.accel_bandwidth_hz, self.gyro_density,
+                  self.gyro_bandwidth_hz]  # fmt: skip
+        if self.mag_sigma_t is not None:
+            values.append(self.mag_sigma_t)
+        if not all(math.isfinite(v) and v > 0 for v in values) or self.mag_hold < 1:
+            raise ValueError(f"noise figures must be finite and positive: {self}")
+
+
+@dataclass(frozen=True, slots=True)
 class Die:
     """One die of a chip: its name (for messages) and the dummy bytes it clocks out before the
     data of an SPI read (a Bosch accel die sends one)."""
@@ -238,6 +268,9 @@ class ChipSpec(Generic[C]):
     # `time_base`'s samples (imud.align). None: one clock for the chip.
     die_periods: Callable[[C], tuple[float, ...]] | None = None
     time_base: int = 0
+    # the device's white noise at its configured settings, for its ROS 2 covariances. None: not
+    # known, and the covariances say so (all zero, REP-145)
+    noise: Callable[[C], NoiseFigures] | None = None
 
 
 def register_links(links: Sequence[Link]) -> list[RegisterDevice]:

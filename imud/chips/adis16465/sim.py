@@ -37,11 +37,19 @@ import numpy.typing as npt
 
 from imud.channels import Channel
 from imud.chips.adis16465 import registers as R
+from imud.chips.adis16465.noise import (
+    ACCEL_NOISE_BAND_HZ,
+    ACCEL_NOISE_UG_RTHZ,
+    GYRO_NOISE_BAND_HZ,
+    GYRO_NOISE_DPS_RTHZ,
+    band_taps,
+    bartlett,
+)
 from imud.chips.adis16465.registers import Register as Reg
 from imud.clock import Clock
 from imud.sim.api import SpiFrameDie, Truth
 from imud.sim.chip import TRUTH_KEEP, SampledChip
-from imud.sim.filters import NoiseStream, bartlett_taps, enbw_fir
+from imud.sim.filters import NoiseStream
 from imud.sim.physics import ChipFigures
 from imud.sim.settings import SimSettings
 from imud.units import STANDARD_GRAVITY as G
@@ -77,12 +85,6 @@ _BURST_HEAD = (R.BURST_CMD >> 8, R.BURST_CMD & 0xFF)
 _NINE = struct.Struct(">9H")
 
 
-# The sensors' own noise bandwidth before the digital filters, per model: the datasheet's output
-# noise without filtering over its density, squared (DS Table 1: gyro 0.07 / 0.08 / 0.17 deg/s
-# rms at 0.003 / 0.003 / 0.007 deg/s/rtHz; accel 0.6 mg rms at 23 ug/rtHz), close to the sensor
-# bandwidths (gyro 550 Hz, accel 600 Hz). Its delay is not published: it colours the noise only.
-GYRO_NOISE_BAND_HZ = {1: (0.07 / 0.003) ** 2, 2: (0.08 / 0.003) ** 2, 3: (0.17 / 0.007) ** 2}
-ACCEL_NOISE_BAND_HZ = (0.6e-3 / 23e-6) ** 2
 BLOCK = 128  # internal samples made per NumPy pass, ahead of time (64 ms)
 # output registers -> column of an output sample's words: gyro and accel _LOW/_OUT (0x04 ...
 # 0x1A), the deltas' (0x24 ... 0x3A), TEMP_OUT
@@ -109,12 +111,13 @@ class _Block:
 
 
 def figures(model: int) -> ChipFigures:
-    """Datasheet noise and in-run bias instability of each model (docs/chips/adis16465.md);
-    turn-on bias, scale, misalignment and temperature drift are moderate figures for a
-    factory-calibrated, temperature-compensated part, not datasheet values."""
+    """Datasheet noise (imud/chips/adis16465/noise.py, shared with the ROS 2 covariances) and
+    in-run bias instability of each model (docs/chips/adis16465.md); turn-on bias, scale,
+    misalignment and temperature drift are moderate figures for a factory-calibrated,
+    temperature-compensated part, not datasheet values."""
     return ChipFigures(
-        accel_noise_ug_rthz=23.0,
-        gyro_noise_dps_rthz={1: 0.003, 2: 0.003, 3: 0.007}[model],
+        accel_noise_ug_rthz=ACCEL_NOISE_UG_RTHZ,
+        gyro_noise_dps_rthz=GYRO_NOISE_DPS_RTHZ[model],
         accel_bias_mg=0.5,
         gyro_bias_dps=0.02,
         accel_bias_instability_ug=3.6,
@@ -141,8 +144,10 @@ class Adis16465Sim(SampledChip):
         self.record_truth = settings.truth
         self._truth_out: list[tuple[int, npt.NDArray[np.int64], dict[Channel, F64]]] = []
         self.outputs_produced = 0  # truth index: output samples since the simulator was made
-        self._noise = (NoiseStream(enbw_fir(GYRO_NOISE_BAND_HZ[model], NOMINAL_HZ)),
-                       NoiseStream(enbw_fir(ACCEL_NOISE_BAND_HZ, NOMINAL_HZ)))  # fmt: skip
+        # the sensors' own band limits (noise.py): they colour the noise only, their delay is
+        # not published
+        self._noise = (NoiseStream(band_taps(GYRO_NOISE_BAND_HZ[model], NOMINAL_HZ)),
+                       NoiseStream(band_taps(ACCEL_NOISE_BAND_HZ, NOMINAL_HZ)))  # fmt: skip
         self.bursts = 0
         self.register_reads = 0
         self._power_on(clock.now_ns())
@@ -266,7 +271,7 @@ class Adis16465Sim(SampledChip):
         k = np.arange(self.next_k, self.next_k + n, dtype=np.float64)
         self.next_k += n
         t_ns, temp, f, w, raw = self._measure(k)
-        taps = bartlett_taps(1 << self.filt)
+        taps = bartlett(self.filt)
         back = taps.shape[0] - 1  # inputs the window needs before the block
         if back:
             if self._hist is None or self._hist.shape[0] != back:

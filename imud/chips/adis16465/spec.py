@@ -7,7 +7,8 @@ from typing import TYPE_CHECKING, cast
 
 from imud.channels import Channel
 from imud.chips.adis16465.config import Adis16465Config
-from imud.chips.api import ChipSpec, Driver
+from imud.chips.adis16465.noise import noise_figures
+from imud.chips.api import ChipSpec, Driver, NoiseFigures
 from imud.clock import Clock
 from imud.sim.api import SimChip
 
@@ -23,6 +24,10 @@ def _driver(cfg: Adis16465Config, links: Sequence[Link], clock: Clock) -> Driver
     if not callable(getattr(link, "xfer2", None)):
         raise TypeError("the ADIS16465 needs the raw SPI device (its spec sets raw_spi)")
     return Adis16465Driver(cfg, cast("SpiDevLike", link), clock)
+
+
+def _noise(cfg: Adis16465Config) -> NoiseFigures:
+    return noise_figures(cfg.model, cfg.filt_ctrl, cfg.dec_rate)
 
 
 def _sim(cfg: Adis16465Config, clock: Clock) -> SimChip:
@@ -47,4 +52,5 @@ SPEC = ChipSpec(
     ),
     raw_spi=True,
     counters=("checksum_errors",),  # bursts whose checksum failed (of garbled_transfers)
+    noise=_noise,
 )

@@ -23,6 +23,12 @@ import numpy as np
 import numpy.typing as npt
 
 from imud.chips.bmi088 import registers as R
+from imud.chips.bmi088.noise import (
+    ACCEL_NOISE_UG_RTHZ,
+    GYRO_NOISE_DPS_RTHZ,
+    accel_bandwidth_hz,
+    gyro_bandwidth_hz,
+)
 from imud.chips.bmi088.registers import AccelRegister as A
 from imud.chips.bmi088.registers import GyroRegister as G
 from imud.clock import Clock
@@ -33,11 +39,12 @@ from imud.sim.physics import ChipFigures, ErrorModel, quantise
 from imud.sim.settings import SimSettings
 from imud.units import STANDARD_GRAVITY as GRAVITY
 
-# Noise densities and gyro bias stability from the datasheet (docs/chips/bmi088.md); the other
-# spreads are typical turn-on figures of this chip class, moderated
+# Noise densities (imud/chips/bmi088/noise.py, shared with the ROS 2 covariances) and gyro bias
+# stability from the datasheet (docs/chips/bmi088.md); the other spreads are typical turn-on
+# figures of this chip class, moderated
 FIGURES = ChipFigures(
-    accel_noise_ug_rthz=175.0,
-    gyro_noise_dps_rthz=0.014,
+    accel_noise_ug_rthz=ACCEL_NOISE_UG_RTHZ,
+    gyro_noise_dps_rthz=GYRO_NOISE_DPS_RTHZ,
     accel_bias_mg=20.0,
     gyro_bias_dps=0.5,
     accel_bias_instability_ug=40.0,
@@ -59,15 +66,14 @@ TEMP_UPDATE_NS = 1_280_000_000
 ACC_FRAMES_MAX = R.ACC_FIFO_BYTES // R.ACC_FRAME_BYTES  # 146 frames; with a skip frame, 1024 bytes
 ACC_ODR_BY_CODE = {code: hz for hz, code in R.ACCEL_ODR_CODES.items()}
 GYRO_FIFO_BYTES = R.GYRO_FIFO_FRAMES * R.GYRO_FRAME_BYTES
-# Noise bandwidth over filter bandwidth of the gyro (Bosch Sensortec's application engineer,
-# community forum "Why the power spectral density (PSD) of BMI088 Gyro have strange peak point",
-# 2020: RMS = density * sqrt(1.22 * bandwidth)); the filters' group delay is not published
-ENBW_PER_BW = 1.22
 
 
-def _unfiltered(rate_hz: float, pre: npt.NDArray[np.float64] | None = None) -> SensorFilter:
-    """No modelled delay, the output grid as the internal one; `pre` colours the noise."""
-    return SensorFilter(0.0, rate_hz, np.ones(1), 1, None, pre)
+def _unfiltered(
+    rate_hz: float, pre: npt.NDArray[np.float64] | None = None, band_hz: float | None = None
+) -> SensorFilter:
+    """No modelled delay (the filters' is not published), the output grid as the internal
+    one; `pre` colours the noise, `band_hz` is the white noise's band (default rate / 2)."""
+    return SensorFilter(0.0, rate_hz, np.ones(1), 1, band_hz, pre)
 
 
 _ACC_DEFAULTS = {
@@ -127,10 +133,11 @@ class Bmi088AccelSim(FilteredChip):
         return ACC_ODR_BY_CODE.get(self.regs[A.ACC_CONF] & 0x0F, 100.0) * (1 + self.clock_error)
 
     def filters(self) -> tuple[SensorFilter, SensorFilter]:
-        """White one-sided noise up to the output's Nyquist: the accel's bandwidth per ODR and
-        oversampling mode was not retrieved (docs/chips/bmi088.md), nor any delay."""
+        """White one-sided noise up to the output's Nyquist (noise.py): the accel's bandwidth
+        per ODR and oversampling mode was not retrieved (docs/chips/bmi088.md), nor any
+        delay."""
         odr = ACC_ODR_BY_CODE.get(self.regs[A.ACC_CONF] & 0x0F, 100.0)
-        return _unfiltered(odr), _unfiltered(odr)
+        return _unfiltered(odr, band_hz=accel_bandwidth_hz(odr)), _unfiltered(odr)
 
     def _emit(
         self,
@@ -289,12 +296,12 @@ class Bmi088GyroSim(FilteredChip):
     _filter_cache: tuple[int, tuple[SensorFilter, SensorFilter]] | None = None
 
     def filters(self) -> tuple[SensorFilter, SensorFilter]:
-        """The gyro's noise coloured to 1.22 x the code's filter bandwidth (Bosch); no delay
-        (not published). The accel of this die is not output."""
+        """The gyro's noise coloured to 1.22 x the code's filter bandwidth (Bosch, noise.py);
+        no delay (not published). The accel of this die is not output."""
         code = self.regs[G.GYRO_BANDWIDTH] & 0x07
         if self._filter_cache is None or self._filter_cache[0] != code:
             odr, bw = R.GYRO_BANDWIDTH_CODES[code]
-            gyro = _unfiltered(odr, enbw_fir(ENBW_PER_BW * bw, odr))
+            gyro = _unfiltered(odr, enbw_fir(gyro_bandwidth_hz(bw), odr))
             self._filter_cache = (code, (_unfiltered(odr), gyro))
         return self._filter_cache[1]
 

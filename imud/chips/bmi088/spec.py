@@ -6,8 +6,9 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from imud.channels import Channel
-from imud.chips.api import ChipSpec, Die, Driver, register_links
+from imud.chips.api import ChipSpec, Die, Driver, NoiseFigures, register_links
 from imud.chips.bmi088.config import GYRO, Bmi088Config
+from imud.chips.bmi088.noise import noise_figures
 from imud.clock import Clock
 from imud.sim.api import SimChip
 
@@ -20,6 +21,11 @@ def _driver(cfg: Bmi088Config, links: Sequence[Link], clock: Clock) -> Driver:
 
     acc, gyr = register_links(links)
     return Bmi088Driver(cfg, acc, gyr, clock)
+
+
+def _noise(cfg: Bmi088Config) -> NoiseFigures:
+    assert cfg.gyro_filter_hz is not None  # the config's validator sets its default
+    return noise_figures(cfg.gyro_filter_hz, cfg.accel_odr_hz)
 
 
 def _sim(cfg: Bmi088Config, clock: Clock) -> SimChip:
@@ -40,4 +46,5 @@ SPEC = ChipSpec(
     # each die on its oscillator: the stream runs at the gyro's times, the accel interpolated
     die_periods=lambda c: (1e9 / c.accel_odr_hz, 1e9 / c.odr_hz),
     time_base=GYRO,
+    noise=_noise,
 )

@@ -42,6 +42,14 @@ import numpy.typing as npt
 
 from imud.channels import Channel
 from imud.chips.bno055 import registers as R
+from imud.chips.bno055.noise import (
+    ACCEL_FUSION_LPF_HZ,
+    ACCEL_NOISE_UG_RTHZ,
+    GYRO_FUSION_LPF_HZ,
+    GYRO_NOISE_DPS_RTHZ,
+    MAG_HOLD,
+    MAG_NOISE_UT,
+)
 from imud.chips.bno055.registers import Page0 as P0
 from imud.chips.bno055.registers import Page1 as P1
 from imud.clock import Clock
@@ -54,12 +62,11 @@ from imud.sim.settings import SimSettings
 from imud.units import STANDARD_GRAVITY as G
 
 F64 = npt.NDArray[np.float64]
-ACCEL_FUSION_LPF_HZ, GYRO_FUSION_LPF_HZ = 62.5, 32.0
 # The BNO055's own sheet gives no noise densities; these are its accelerometer's and gyroscope's
-# class (BMA280 / BMG160-like, docs/chips/bno055.md), bias stability ~5 deg/h
+# class (imud/chips/bno055/noise.py, shared with the ROS 2 covariances), bias stability ~5 deg/h
 FIGURES = ChipFigures(
-    accel_noise_ug_rthz=150.0,
-    gyro_noise_dps_rthz=0.014,
+    accel_noise_ug_rthz=ACCEL_NOISE_UG_RTHZ,
+    gyro_noise_dps_rthz=GYRO_NOISE_DPS_RTHZ,
     accel_bias_mg=30.0,
     gyro_bias_dps=0.5,
     accel_bias_instability_ug=100.0,
@@ -71,7 +78,7 @@ FIGURES = ChipFigures(
 )
 
 RATE_HZ = 100.0
-MAG_EVERY = 5  # the magnetometer updates at 20 Hz in the fusion modes
+MAG_EVERY = MAG_HOLD  # the magnetometer updates at 20 Hz in the fusion modes
 RESET_BUSY_NS = 650_000_000
 TO_MODE_NS = 7_000_000  # CONFIGMODE -> operation mode
 TO_CONFIG_NS = 19_000_000  # operation mode -> CONFIGMODE
@@ -140,7 +147,10 @@ class Bno055Sim(SampledChip):
         super().__init__(settings, clock, FIGURES)
         self._truth: list[dict[str, Any]] = []  # made here, whole (`_produce`)
         seeds = np.random.SeedSequence([settings.seed, 0x055]).spawn(3)
-        self.field = MagneticField(settings.magnetic, np.random.default_rng(seeds[0]))
+        magnetic = settings.magnetic
+        if "noise_ut" not in magnetic.model_fields_set:  # the chip's figure unless overridden
+            magnetic = magnetic.model_copy(update={"noise_ut": MAG_NOISE_UT})
+        self.field = MagneticField(magnetic, np.random.default_rng(seeds[0]))
         rng = np.random.default_rng(seeds[1])
         axis = rng.normal(size=3)
         self.error_axis = axis / np.linalg.norm(axis)
@@ -148,10 +158,15 @@ class Bno055Sim(SampledChip):
         self.lock = threading.RLock()  # the pty pump and the bus worker (truth) both come here
         self.uart = UartFrontEnd(self, serial_baud, settings, seeds[2]) if serial_baud else None
         self.resets = 0
-        # fusion mode locks the filters at accel 62.5 Hz and gyro 32 Hz (docs/chips/bno055.md);
-        # at 100 Hz out only the gyro's narrows the noise; no delay is published (0)
+        # fusion mode locks the filters at accel 62.5 Hz and gyro 32 Hz (noise.py); at 100 Hz
+        # out only the gyro's narrows the noise, the accel's band is above the Nyquist and
+        # aliases: white, drawn at that band's variance; no delay is published (0)
         self._noise = (NoiseStream(enbw_fir(ACCEL_FUSION_LPF_HZ, RATE_HZ)),
                        NoiseStream(enbw_fir(GYRO_FUSION_LPF_HZ, RATE_HZ)))  # fmt: skip
+        self._aliased = tuple(
+            math.sqrt(max(1.0, bw / (RATE_HZ / 2)))
+            for bw in (ACCEL_FUSION_LPF_HZ, GYRO_FUSION_LPF_HZ)
+        )
         self._power_on_reset()
 
     @property
@@ -207,9 +222,9 @@ class Bno055Sim(SampledChip):
         temp = self.temp.at(t_s)
         e, rng, n = self.errors, self.errors.noise_rng, t_ns.shape[0]
         fm = e.accel.deterministic(t_s, f, temp)
-        fm += self._noise[0].draw(rng, e.accel.noise, self.rate_hz, n)
+        fm += self._noise[0].draw(rng, e.accel.noise * self._aliased[0], self.rate_hz, n)
         wm = e.gyro.deterministic(t_s, w, temp)
-        wm += self._noise[1].draw(rng, e.gyro.noise, self.rate_hz, n)
+        wm += self._noise[1].draw(rng, e.gyro.noise * self._aliased[1], self.rate_hz, n)
         b = self.field.in_body(q)
         mm = self.field.measure(b)
         n = t_ns.shape[0]

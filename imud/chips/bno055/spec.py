@@ -8,8 +8,9 @@ from typing import TYPE_CHECKING
 
 from imud.buses.registers import RegisterDevice
 from imud.channels import Channel
-from imud.chips.api import ChipSpec, Driver, DriverCounters
+from imud.chips.api import ChipSpec, Driver, DriverCounters, NoiseFigures
 from imud.chips.bno055.config import Bno055Config
+from imud.chips.bno055.noise import noise_figures
 from imud.clock import Clock
 from imud.sim.api import SimChip
 
@@ -27,6 +28,10 @@ def _driver(cfg: Bno055Config, links: Sequence[Link], clock: Clock) -> Driver:
     counters = DriverCounters()
     uart = Bno055Uart(link, clock, counters)  # type: ignore[arg-type]
     return Bno055Driver(cfg, uart, clock, uart=uart, counters=counters)
+
+
+def _noise(cfg: Bno055Config) -> NoiseFigures:
+    return noise_figures()  # the same in every mode (noise.py)
 
 
 def _sim(cfg: Bno055Config, clock: Clock) -> SimChip:
@@ -51,4 +56,5 @@ SPEC = ChipSpec(
     | Channel.ACCEL
     | Channel.MAG
     | Channel.TEMPERATURE,
+    noise=_noise,
 )

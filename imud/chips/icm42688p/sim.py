@@ -15,6 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from imud.chips.icm42688p import registers as R
+from imud.chips.icm42688p.noise import ACCEL_NOISE_UG_RTHZ, GYRO_NOISE_DPS_RTHZ, ui_bandwidth_hz
 from imud.chips.icm42688p.registers import Bank0 as B0
 from imud.chips.icm42688p.registers import Bank1 as B1
 from imud.chips.icm42688p.registers import Bank2 as B2
@@ -25,11 +26,11 @@ from imud.sim.physics import ChipFigures, quantise
 from imud.sim.settings import SimSettings
 from imud.units import STANDARD_GRAVITY as G
 
-# Noise densities from the datasheet (docs/chips/icm42688p.md); bias and drift sigmas are typical
-# turn-on spreads of the chip class, moderated
+# Noise densities from the datasheet (imud/chips/icm42688p/noise.py, shared with the ROS 2
+# covariances); bias and drift sigmas are typical turn-on spreads of the chip class, moderated
 FIGURES = ChipFigures(
-    accel_noise_ug_rthz=70.0,
-    gyro_noise_dps_rthz=0.0028,
+    accel_noise_ug_rthz=ACCEL_NOISE_UG_RTHZ,
+    gyro_noise_dps_rthz=GYRO_NOISE_DPS_RTHZ,
     accel_bias_mg=20.0,
     gyro_bias_dps=0.5,
     accel_bias_instability_ug=40.0,
@@ -52,10 +53,6 @@ _BOTH = int(R.FifoConfig1.ACCEL_EN | R.FifoConfig1.GYRO_EN)
 _HDR = int(R.Header.ACCEL | R.Header.GYRO) | R.HEADER_TMST_FSYNC.bits(R.TMST_FSYNC_ODR)
 _HDR_20 = int(R.Header.HIRES_20)
 ODR_BY_CODE = {code: hz for hz, code in R.ODR_CODES.items()}
-# UI filter code (GYRO_ACCEL_CONFIG0 nibble) -> divisor of max(400 Hz, ODR): its bandwidth in
-# low-noise mode (docs/chips/icm42688p.md section 2.1); code 0 is ODR/2, the low-latency codes
-# 14 and 15 narrow nothing below the output's Nyquist
-UI_FILTER_DIVISOR = {1: 4, 2: 5, 3: 8, 4: 10, 5: 16, 6: 20, 7: 40}
 
 _BANK0_DEFAULTS = {
     B0.WHO_AM_I: R.WHO_AM_I_VALUE, B0.INTF_CONFIG0: 0x30, B0.INTF_CONFIG1: 0x91,
@@ -108,16 +105,18 @@ class Icm42688pSim(FilteredChip):
 
     def filters(self) -> tuple[SensorFilter, SensorFilter]:
         """Each sensor's UI filter as a colouring of its noise: the code's bandwidth taken as
-        the noise bandwidth, one-sided density. Its group delay is in the datasheet's per-ODR
-        tables (DS-000347 section 5.5), which were not retrieved: none is modelled (0), so
-        the motion passes unfiltered."""
+        the noise bandwidth (noise.py), one-sided density; a band above the output's Nyquist
+        (a low rate) is the aliased band, white at its variance. Its group delay is in the
+        datasheet's per-ODR tables (DS-000347 section 5.5), which were not retrieved: none is
+        modelled (0), so the motion passes unfiltered."""
         key = (self.regs[B0.GYRO_CONFIG0] & 0x0F, self.regs[B0.GYRO_ACCEL_CONFIG0])
         if self._filter_cache is None or self._filter_cache[0] != key:
             odr = ODR_BY_CODE.get(key[0], 1000.0)
 
             def ui(code: int) -> SensorFilter:
-                div = UI_FILTER_DIVISOR.get(code)
-                bw = max(400.0, odr) / div if div else odr / 2
+                bw = ui_bandwidth_hz(code, odr)
+                if bw >= odr / 2:
+                    return SensorFilter(0.0, odr, np.ones(1), 1, bw)
                 return SensorFilter(0.0, odr, np.ones(1), 1, None, enbw_fir(bw, odr))
 
             self._filter_cache = (key, (ui(key[1] >> 4), ui(key[1] & 0x0F)))

@@ -6,8 +6,9 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from imud.channels import Channel
-from imud.chips.api import ChipSpec, Driver, register_links
+from imud.chips.api import ChipSpec, Driver, NoiseFigures, register_links
 from imud.chips.icm42688p.config import Icm42688pConfig
+from imud.chips.icm42688p.noise import noise_figures
 from imud.clock import Clock
 from imud.sim.api import SimChip
 
@@ -20,6 +21,10 @@ def _driver(cfg: Icm42688pConfig, links: Sequence[Link], clock: Clock) -> Driver
 
     (dev,) = register_links(links)
     return Icm42688pDriver(cfg, dev, clock)
+
+
+def _noise(cfg: Icm42688pConfig) -> NoiseFigures:
+    return noise_figures(cfg.odr_hz, cfg.ui_filter)
 
 
 def _sim(cfg: Icm42688pConfig, clock: Clock) -> SimChip:
@@ -36,4 +41,5 @@ SPEC = ChipSpec(
     make_sim=_sim,
     transports=("spi", "i2c"),
     channels=Channel.ACCEL | Channel.GYRO | Channel.TEMPERATURE,
+    noise=_noise,
 )

@@ -8,6 +8,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from imud.chips.mpu6050.noise import (
+    ACCEL_DLPF_HZ,
+    ACCEL_NOISE_UG_RTHZ,
+    GYRO_DLPF_HZ,
+    GYRO_NOISE_DPS_RTHZ,
+)
 from imud.chips.mpu6050.registers import (
     ACCEL_RANGES_G,
     FIFO_SIZE,
@@ -26,11 +32,11 @@ from imud.sim.physics import ChipFigures, quantise
 from imud.sim.settings import SimSettings
 from imud.units import STANDARD_GRAVITY as G
 
-# Noise densities from the datasheet (docs/chips/mpu6050.md); bias and drift sigmas are typical
-# turn-on spreads, moderated
+# Noise densities from the datasheet (imud/chips/mpu6050/noise.py, shared with the ROS 2
+# covariances); bias and drift sigmas are typical turn-on spreads, moderated
 FIGURES = ChipFigures(
-    accel_noise_ug_rthz=400.0,
-    gyro_noise_dps_rthz=0.005,
+    accel_noise_ug_rthz=ACCEL_NOISE_UG_RTHZ,
+    gyro_noise_dps_rthz=GYRO_NOISE_DPS_RTHZ,
     accel_bias_mg=25.0,
     gyro_bias_dps=1.0,
     accel_bias_instability_ug=100.0,
@@ -41,12 +47,10 @@ FIGURES = ChipFigures(
     gyro_temp_drift_dps_per_c=0.02,
 )
 
-# The DLPF per DLPF_CFG 0..6: (bandwidth Hz, group delay s), accel at Fs 1 kHz and gyro
-# (RM-MPU-6000A-00 rev 4.2, §4.3, register 26 table; docs/chips/mpu6050.md)
-ACCEL_DLPF = ((260, 0.0), (184, 2.0e-3), (94, 3.0e-3), (44, 4.9e-3), (21, 8.5e-3),
-              (10, 13.8e-3), (5, 19.0e-3))  # fmt: skip
-GYRO_DLPF = ((256, 0.98e-3), (188, 1.9e-3), (98, 2.8e-3), (42, 4.8e-3), (20, 8.3e-3),
-             (10, 13.4e-3), (5, 18.6e-3))  # fmt: skip
+# The DLPF's group delay per DLPF_CFG 0..6 (s), accel at Fs 1 kHz and gyro (RM-MPU-6000A-00 rev
+# 4.2, §4.3, register 26 table; docs/chips/mpu6050.md); its bandwidths are noise.py's
+ACCEL_DLPF_DELAY_S = (0.0, 2.0e-3, 3.0e-3, 4.9e-3, 8.5e-3, 13.8e-3, 19.0e-3)
+GYRO_DLPF_DELAY_S = (0.98e-3, 1.9e-3, 2.8e-3, 4.8e-3, 8.3e-3, 13.4e-3, 18.6e-3)
 
 # plain ints on the hot path: an operator on an IntFlag builds a new enum member each time
 _DATA_RDY = int(IntStatus.DATA_RDY_INT)
@@ -121,8 +125,8 @@ class Mpu6050Sim(FilteredChip):
         if self._filter_cache is None or self._filter_cache[0] != key:
             cfg = key[0] if key[0] < 7 else 0
             m = 1 + key[1]
-            gbw, gdelay = GYRO_DLPF[cfg]
-            abw, adelay = ACCEL_DLPF[cfg]
+            gbw, gdelay = GYRO_DLPF_HZ[cfg], GYRO_DLPF_DELAY_S[cfg]
+            abw, adelay = ACCEL_DLPF_HZ[cfg], ACCEL_DLPF_DELAY_S[cfg]
             internal = self.internal_hz
             gyro = design(gbw, gdelay, internal, m)
             if internal == 8000.0:  # accel at 1 kHz, held: white over its own 500 Hz band

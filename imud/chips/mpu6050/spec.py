@@ -6,8 +6,9 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from imud.channels import Channel
-from imud.chips.api import ChipSpec, Driver, register_links
+from imud.chips.api import ChipSpec, Driver, NoiseFigures, register_links
 from imud.chips.mpu6050.config import Mpu6050Config
+from imud.chips.mpu6050.noise import noise_figures
 from imud.clock import Clock
 from imud.sim.api import SimChip
 
@@ -20,6 +21,10 @@ def _driver(cfg: Mpu6050Config, links: Sequence[Link], clock: Clock) -> Driver:
 
     (dev,) = register_links(links)
     return Mpu6050Driver(cfg, dev, clock)
+
+
+def _noise(cfg: Mpu6050Config) -> NoiseFigures:
+    return noise_figures(cfg.dlpf_hz)
 
 
 def _sim(cfg: Mpu6050Config, clock: Clock) -> SimChip:
@@ -36,4 +41,5 @@ SPEC = ChipSpec(
     make_sim=_sim,
     transports=("i2c",),
     channels=Channel.ACCEL | Channel.GYRO | Channel.TEMPERATURE,
+    noise=_noise,
 )

@@ -25,30 +25,33 @@ import numpy as np
 import numpy.typing as npt
 
 from imud.chips.stim300 import registers as R
+from imud.chips.stim300.noise import GYRO_NOISE_DPS_RTHZ, accel_noise_ug_rthz
 from imud.clock import Clock
 from imud.sim.filters import FilteredChip, SensorFilter, design
 from imud.sim.physics import ChipFigures, ErrorModel
 from imud.sim.settings import SimSettings
 from imud.units import STANDARD_GRAVITY as G
 
-# Datasheet figures (docs/chips/stim300.md): ARW 0.15 deg/sqrt(h) and VRW 0.024 m/s/sqrt(h)
-# (5/10 g) are Allan N, the Allan deviation's -1/2 line at 1 s: 0.0025 deg/s/sqrt(Hz) and 4.0e-4
-# m/s^2/sqrt(Hz) = 40.8 ug/sqrt(Hz). The filtered model draws one-sided densities, whose Allan N
-# is density / sqrt(2) (docs/timestamps.md): so the densities are sqrt(2) times those. Bias
-# instability 0.5 deg/h and 6 ug (at 600 s). Turn-on bias, scale and misalignment: tactical-grade
-# spreads.
-FIGURES = ChipFigures(
-    accel_noise_ug_rthz=40.8 * math.sqrt(2),
-    gyro_noise_dps_rthz=0.0025 * math.sqrt(2),
-    accel_bias_mg=0.75,
-    gyro_bias_dps=0.00069,  # 2.5 deg/h
-    accel_bias_instability_ug=6.0,
-    gyro_bias_instability_dph=0.5,
-    scale_error=0.0005,
-    misalignment_deg=0.05,
-    accel_temp_drift_mg_per_c=0.01,
-    gyro_temp_drift_dps_per_c=0.00003,
-)
+
+def figures(accel_range_g: int) -> ChipFigures:
+    """Datasheet figures (docs/chips/stim300.md): the noise densities from ARW 0.15 deg/sqrt(h)
+    and the variant's VRW (noise.py, shared with the ROS 2 covariances); bias instability
+    0.5 deg/h and 6 ug (at 600 s, 5/10 g). Turn-on bias, scale and misalignment: tactical-grade
+    spreads."""
+    return ChipFigures(
+        accel_noise_ug_rthz=accel_noise_ug_rthz(accel_range_g),
+        gyro_noise_dps_rthz=GYRO_NOISE_DPS_RTHZ,
+        accel_bias_mg=0.75,
+        gyro_bias_dps=0.00069,  # 2.5 deg/h
+        accel_bias_instability_ug=6.0,
+        gyro_bias_instability_dph=0.5,
+        scale_error=0.0005,
+        misalignment_deg=0.05,
+        accel_temp_drift_mg_per_c=0.01,
+        gyro_temp_drift_dps_per_c=0.00003,
+    )
+
+
 # inclinometers: VRW 0.08 m/s/sqrt(h) = 1.33e-3 m/s^2/sqrt(Hz) = 136 ug/sqrt(Hz), BI 0.08 mg
 INCL_FIGURES = ChipFigures(
     accel_noise_ug_rthz=136.0,
@@ -103,7 +106,7 @@ class Stim300Sim(FilteredChip):
         startup_ns: int = R.STARTUP_TYP_NS,
         filter_hz: int = 262,
     ) -> None:
-        super().__init__(settings, clock, FIGURES)
+        super().__init__(settings, clock, figures(accel_range_g))
         self.filter_hz = filter_hz
         self.ident = R.DatagramId(datagram)
         self.acc, self.incl, self.temps = R.CONTENT[self.ident]

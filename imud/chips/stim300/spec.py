@@ -6,8 +6,9 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from imud.channels import Channel
-from imud.chips.api import ChipSpec, Driver
+from imud.chips.api import ChipSpec, Driver, NoiseFigures
 from imud.chips.stim300.config import Stim300Config
+from imud.chips.stim300.noise import noise_figures
 from imud.clock import Clock
 from imud.sim.api import SimChip
 
@@ -23,6 +24,10 @@ def _driver(cfg: Stim300Config, links: Sequence[Link], clock: Clock) -> Driver:
     if not isinstance(port, SerialPort):
         raise TypeError("the STIM300 needs a serial link")
     return Stim300Driver(cfg, port, clock)
+
+
+def _noise(cfg: Stim300Config) -> NoiseFigures:
+    return noise_figures(cfg.filter_hz, cfg.accel_range_g)
 
 
 def _sim(cfg: Stim300Config, clock: Clock) -> SimChip:
@@ -51,4 +56,5 @@ SPEC = ChipSpec(
     transports=("serial",),
     channels=Channel.ACCEL | Channel.GYRO | Channel.TEMPERATURE | Channel.INCLINATION,
     counters=("crc_errors",),  # datagrams whose CRC failed (of garbled_transfers)
+    noise=_noise,
 )
