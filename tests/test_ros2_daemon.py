@@ -138,6 +138,14 @@ def test_messages_on_rmw_zenohs_key_are_the_native_streams_means(daemon: DaemonP
     # REP-145: no orientation, said with -1, and the frame_id of the device
     assert all(m["orientation_covariance"][0] == -1.0 for m in msgs)
     assert {m["frame_id"] for m in msgs} == {"imu0_link"}
+    # the covariances (docs/ros2.md): diagonal, positive, never -1: the MPU6050's density over
+    # its 188 Hz DLPF, the mean of five samples
+    for key in ("gyro_covariance", "accel_covariance"):
+        c = np.array([m[key] for m in msgs])
+        assert np.all(c[:, [0, 4, 8]] > 0) and not np.delete(c, [0, 4, 8], axis=1).any()
+        assert np.all(c == c[0])
+    single = np.radians(0.005) ** 2 * 188  # one sample's variance: the mean's is below it
+    assert single / 5 < msgs[0]["gyro_covariance"][0] < single
     # stamps strictly increase, 5 ms apart (five 1 kHz samples a message)
     t = np.array([m["t_ns"] for m in msgs])
     assert np.all(np.diff(t) > 0)
@@ -178,12 +186,15 @@ def test_a_chip_with_an_orientation_and_a_magnetometer_has_imu_data_and_imu_mag(
     fused = parse_imu(got["imu/data"].payload.to_bytes())
     q = np.array(fused["orientation"])
     assert np.linalg.norm(q) == pytest.approx(1.0, abs=1e-3)  # a real orientation
-    assert fused["orientation_covariance"][0] != -1.0
+    assert fused["orientation_covariance"] == (0.0,) * 9  # known to be there, accuracy unknown
+    assert all(fused["gyro_covariance"][i] > 0 for i in (0, 4, 8))
     mag = got["imu/mag"].payload.to_bytes()[4:]
     (n,) = struct.unpack_from("<I", mag, 8)
     at = (12 + n + 7) // 8 * 8
     field = np.array(struct.unpack_from("<3d", mag, at))
     assert 20e-6 < np.linalg.norm(field) < 70e-6  # tesla: the Earth's field, not µT or gauss
+    cov = np.array(struct.unpack_from("<9d", mag, at + 24))  # one 100 Hz sample a message
+    np.testing.assert_allclose(cov, np.diag([0.3e-6**2] * 3).ravel(), rtol=1e-12)
 
 
 def test_status_names_the_ros2_topics(daemon: DaemonProc) -> None:

@@ -23,12 +23,13 @@ import zenoh
 from imud.channels import Channel
 from imud.ros2 import rmw_zenoh as rz
 from imud.ros2.cdr import Layout, layout, messages
+from imud.ros2.covariance import UNKNOWN, Covariances, covariances
 from imud.ros2.decimate import Decimator, factor
 from imud.rosnames import join
 from imud.wire import KIND_SAMPLES, WireError, decode
 
 if TYPE_CHECKING:
-    from imud.chips.api import DeviceBase
+    from imud.chips.api import DeviceBase, NoiseFigures
     from imud.config import ImudConfig, Ros2Settings
 
 log = logging.getLogger("imud.ros2")
@@ -37,7 +38,6 @@ IMU = "sensor_msgs/msg/Imu"
 MAG = "sensor_msgs/msg/MagneticField"
 TEMPERATURE = "sensor_msgs/msg/Temperature"
 NO_ORIENTATION = np.r_[-1.0, np.zeros(8)]  # REP-145: orientation_covariance[0] = -1
-UNKNOWN = np.zeros(9)  # covariance not known (REP-145)
 
 
 class DomainError(ValueError):
@@ -79,6 +79,7 @@ class _Topic:
 class _Device:
     cfg: DeviceBase
     decimator: Decimator
+    cov: Covariances  # of its messages at its settings and rate (docs/ros2.md "Covariances")
     topics: dict[str, _Topic] = field(default_factory=dict)
     last_ns: int = -1  # stamps never step back (a bus restarted, a reload)
     dropped: int = 0
@@ -128,7 +129,8 @@ class Ros2Output:
         s = self.settings
         channels = Channel(registry.CHIPS[d.chip].channels)
         rate = d.ros2.rate_hz or s.rate_hz
-        dev = _Device(d, Decimator(factor(d.odr_hz, rate)))
+        k = factor(d.odr_hz, rate)
+        dev = _Device(d, Decimator(k), covariances(_noise(d), d.odr_hz, k))
         where = join(s.namespace, d.ros2.namespace or d.name)
         frame = d.ros2.frame_id or s.frame_id
         wanted: list[tuple[str, str]] = []
@@ -230,31 +232,34 @@ class Ros2Output:
     def _publish(self, dev: _Device, t: Any, c: dict[str, Any]) -> None:
         n = t.shape[0]
         zeros3 = np.zeros((n, 3))
+        cov = dev.cov
         raw = dev.topics.get("imu/data_raw")
         if raw is not None:
             fields = {
                 "orientation": np.zeros(4),
                 "orientation_covariance": NO_ORIENTATION,
                 "angular_velocity": c.get("angular_velocity", zeros3),
-                "angular_velocity_covariance": UNKNOWN,
+                "angular_velocity_covariance": cov.gyro,
                 "linear_acceleration": c.get("linear_acceleration", zeros3),
-                "linear_acceleration_covariance": UNKNOWN,
+                "linear_acceleration_covariance": cov.accel,
             }
             self._put(raw, messages(raw.layout, t, fields))
         fused = dev.topics.get("imu/data")
         if fused is not None and "orientation" in c:
             fields = {
                 "orientation": c["orientation"],
+                # an orientation whose accuracy no datasheet figure imud has states: unknown
+                # (REP-145), never -1, which would say there is none
                 "orientation_covariance": UNKNOWN,
                 "angular_velocity": c.get("angular_velocity", zeros3),
-                "angular_velocity_covariance": UNKNOWN,
+                "angular_velocity_covariance": cov.gyro,
                 "linear_acceleration": c.get("linear_acceleration", zeros3),
-                "linear_acceleration_covariance": UNKNOWN,
+                "linear_acceleration_covariance": cov.accel,
             }
             self._put(fused, messages(fused.layout, t, fields))
         mag = dev.topics.get("imu/mag")
         if mag is not None and "magnetic_field" in c:
-            fields = {"magnetic_field": c["magnetic_field"], "magnetic_field_covariance": UNKNOWN}
+            fields = {"magnetic_field": c["magnetic_field"], "magnetic_field_covariance": cov.mag}
             self._put(mag, messages(mag.layout, t, fields))
         temp = dev.topics.get("imu/temperature")
         if temp is not None and "temperature" in c:
@@ -282,6 +287,15 @@ _FIELDS = {
 }
 
 
+def _noise(d: DeviceBase) -> NoiseFigures | None:
+    """The device's white noise at its settings, as its chip's spec states it (None: unknown)."""
+    from imud import registry
+
+    noise = registry.CHIPS[d.chip].noise
+    return None if noise is None else noise(d)
+
+
 def _same(a: DeviceBase, b: DeviceBase) -> bool:
-    """The same ROS 2 side: chip, rate and ROS settings."""
-    return (a.chip, a.odr_hz, a.ros2) == (b.chip, b.odr_hz, b.ros2)
+    """The same ROS 2 side: chip, rate, ROS settings and noise (a new filter setting changes
+    the covariances)."""
+    return (a.chip, a.odr_hz, a.ros2, _noise(a)) == (b.chip, b.odr_hz, b.ros2, _noise(b))
