@@ -73,6 +73,8 @@ class _Topic:
     token_key: str = ""
     gid: bytes = b""
     sent: int = 0  # messages put
+    lock: threading.Lock = field(default_factory=threading.Lock)  # the old and new device's
+    # relay threads both put during a reload
 
 
 @dataclass
@@ -95,7 +97,9 @@ class Ros2Output:
         self._node = session.liveliness().declare_token(
             rz.node_token(self.domain, self.zid, 0, self.settings.namespace, self.settings.node)
         )
-        self._sent: dict[str, int] = {}  # token -> messages put, kept across reconfigures
+        # topics by (name, type, frame_id): a device rebuilt by a reload keeps its publishers,
+        # GIDs and sequence numbers, so subscribers see one publisher that never restarted
+        self._topics: dict[tuple[str, str, str], _Topic] = {}
         self._devices: dict[str, _Device] = {}
         self._lock = threading.Lock()  # declaring and undeclaring (event loop) only
         self.reconfigure(cfg)
@@ -119,9 +123,11 @@ class Ros2Output:
                     dev.last_ns = prev.last_ns
                 new[d.name] = dev
             self._devices = new
-            for name, dev in old.items():
-                if new.get(name) is not dev:
-                    self._undeclare(dev)
+            used = {id(t) for dev in new.values() for t in dev.topics.values()}
+            for key, t in list(self._topics.items()):
+                if id(t) not in used:
+                    self._undeclare(t)
+                    del self._topics[key]
 
     def _device(self, d: DeviceBase) -> _Device:
         from imud import registry  # the chip's channels: what topics it has
@@ -143,8 +149,11 @@ class Ros2Output:
         if s.temperature and channels & Channel.TEMPERATURE:
             wanted.append(("imu/temperature", TEMPERATURE))
         for rel, type_name in wanted:
-            topic = _Topic(join(where, rel), type_name, layout(type_name, frame))
-            self._declare(topic)
+            key = (join(where, rel), type_name, frame)
+            topic = self._topics.get(key)
+            if topic is None:
+                topic = self._topics[key] = _Topic(key[0], type_name, layout(type_name, frame))
+                self._declare(topic)
             dev.topics[rel] = topic
         return dev
 
@@ -158,9 +167,6 @@ class Ros2Output:
                 t.type_name, type_hash, qos,
             )  # fmt: skip
             t.gid = rz.gid(t.token_key)
-            # a new publisher of the same topic (a reload) continues its predecessor's numbers,
-            # so subscribers count no loss; a GID is per token, so both are per topic here
-            t.sent = self._sent.get(t.name, 0)
             t.rmw = self.session.declare_publisher(
                 rz.data_key(self.domain, t.name, t.type_name, type_hash),
                 congestion_control=zenoh.CongestionControl.DROP,  # as rmw_zenoh's KEEP_LAST
@@ -175,13 +181,11 @@ class Ros2Output:
                 t.name.lstrip("/"), congestion_control=zenoh.CongestionControl.DROP
             )
 
-    def _undeclare(self, dev: _Device) -> None:
-        for t in dev.topics.values():
-            self._sent[t.name] = t.sent
-            for ent in (t.rmw, t.bridge, t.token):
-                if ent is not None:
-                    with contextlib.suppress(zenoh.ZError):  # the session is closing
-                        ent.undeclare()
+    def _undeclare(self, t: _Topic) -> None:
+        for ent in (t.rmw, t.bridge, t.token):
+            if ent is not None:
+                with contextlib.suppress(zenoh.ZError):  # the session is closing
+                    ent.undeclare()
 
     def topics(self) -> list[str]:
         """Every topic published, for status."""
@@ -189,8 +193,9 @@ class Ros2Output:
 
     def close(self) -> None:
         with self._lock:
-            for dev in self._devices.values():
-                self._undeclare(dev)
+            for t in self._topics.values():
+                self._undeclare(t)
+            self._topics = {}
             self._devices = {}
             with contextlib.suppress(zenoh.ZError):
                 self._node.undeclare()  # type: ignore[no-untyped-call]
@@ -269,13 +274,14 @@ class Ros2Output:
     def _put(self, t: _Topic, records: Any) -> None:
         form = rz.Attachment(self.settings.attachment)
         now = time.time_ns()
-        for r in records:
-            payload = r.tobytes()
-            if t.rmw is not None:
-                t.sent += 1
-                t.rmw.put(payload, attachment=rz.attachment(t.sent, now, t.gid, form))
-            if t.bridge is not None:
-                t.bridge.put(payload)
+        with t.lock:
+            for r in records:
+                payload = r.tobytes()
+                if t.rmw is not None:
+                    t.sent += 1
+                    t.rmw.put(payload, attachment=rz.attachment(t.sent, now, t.gid, form))
+                if t.bridge is not None:
+                    t.bridge.put(payload)
 
 
 _FIELDS = {
