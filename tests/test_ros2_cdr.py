@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from imud.ros2.cdr import MESSAGE_TYPES, layout, messages
+from imud.ros2.cdr import MESSAGE_TYPES, layout, messages, template
 
 pytestmark = pytest.mark.extra  # rosbags (the `dev` extra)
 rosbags = pytest.importorskip("rosbags.typesys")
@@ -77,6 +77,10 @@ def test_every_message_is_rosbags_bytes_and_reads_back(type_name: str, frame_id:
     given: dict[str, Any] = {k: (a[0] if k.endswith("covariance") else a) for k, a in v.items()}
     out = messages(lay, t_ns, given)
     assert out.dtype.itemsize == lay.size
+    # the constant fields written once into a template, the rest per message: the same bytes
+    fixed = {k: a for k, a in given.items() if k.endswith("covariance")}
+    varying = {k: a for k, a in given.items() if k not in fixed}
+    assert messages(lay, t_ns, varying, template(lay, fixed)).tobytes() == out.tobytes()
     for i in range(n):
         sec, nanosec = divmod(int(t_ns[i]), 10**9)
         per = {k: (a[0] if k.endswith("covariance") else a[i]) for k, a in v.items()}

@@ -79,19 +79,32 @@ def layout(type_name: str, frame_id: str) -> Layout:
     return Layout(type_name, frame_id, dtype)
 
 
-def messages(lay: Layout, t_ns: I64, fields: dict[str, F64 | float]) -> npt.NDArray[np.void]:
-    """`len(t_ns)` messages of `lay`: one record each, its bytes the message's CDR. `fields`
-    gives every float64 field of the type, an (N, count) array or one value for all (a
-    covariance is a (9,) array, broadcast)."""
-    n = int(t_ns.shape[0])
-    out = np.zeros(n, dtype=lay.dtype)  # zero: CDR's padding bytes are zero too
+def template(lay: Layout, fixed: dict[str, F64 | float] | None = None) -> npt.NDArray[np.void]:
+    """One message of `lay`, stamp 0, its `fixed` fields set and every other float zero: what
+    `messages` copies, so a stream's constant fields (covariances) are written once."""
+    out = np.zeros(1, dtype=lay.dtype)  # zero: CDR's padding bytes are zero too
     out["encapsulation"] = np.frombuffer(ENCAPSULATION, dtype="V4")[0]
-    t = np.asarray(t_ns, dtype=np.int64)
-    out["sec"] = t // 1_000_000_000
-    out["nanosec"] = t % 1_000_000_000
     name = lay.frame_id.encode() + b"\0"
     out["frame_len"] = len(name)
     out["frame_id"] = np.frombuffer(name, dtype=f"V{len(name)}")[0]
-    for field, _ in _BODIES[lay.type_name]:
-        out[field] = fields[field]
+    for field, value in (fixed or {}).items():
+        out[field] = value
+    return out
+
+
+def messages(
+    lay: Layout,
+    t_ns: I64,
+    fields: dict[str, F64 | float],
+    base: npt.NDArray[np.void] | None = None,
+) -> npt.NDArray[np.void]:
+    """`len(t_ns)` messages of `lay`: one record each, its bytes the message's CDR. `fields`
+    gives float64 fields of the type, an (N, count) array or one value for all (a covariance is
+    a (9,) array, broadcast); those it leaves out are `base`'s (a `template`), else zero."""
+    t = np.asarray(t_ns, dtype=np.int64)
+    out = np.repeat(template(lay) if base is None else base, t.shape[0])
+    out["sec"] = t // 1_000_000_000
+    out["nanosec"] = t % 1_000_000_000
+    for field, value in fields.items():
+        out[field] = value
     return out

@@ -7,14 +7,18 @@ members (averaged over those it has). A message's stamp is its members' mean ins
 their means: for the gyro the mean rate over the interval (what integrating it over the interval
 gives, divided by its length), for the accelerometer and magnetometer their box-filtered value,
 for an orientation the normalised mean of its quaternions taken on one hemisphere. A value the
-chip marked invalid (NaN) is left out of its channel's mean; a channel with none left in a group
+chip marked invalid (NaN) is left out of its column's mean; a column with none left in a group
 is NaN. `k = 1` passes every sample through.
+
+A device's channels come as one (N, W) float64 matrix, so a batch costs the same few array
+operations whatever the chip has; a group still open at a batch's end is kept as running sums,
+not samples.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -31,8 +35,8 @@ def factor(odr_hz: float, rate_hz: float) -> int:
 @dataclass
 class Decimated:
     t_ns: I64
-    channels: dict[str, F64]
-    members: npt.NDArray[np.int64]  # samples each message averages
+    values: F64  # (n, W)
+    members: I64  # samples each message averages
 
     @property
     def n(self) -> int:
@@ -40,84 +44,117 @@ class Decimated:
 
 
 @dataclass
-class _Open:
-    """The newest group, still waiting for members."""
+class _Sums:
+    """Groups as running sums: stamps relative to each group's first member."""
 
-    group: int
-    seq: I64
-    t_ns: I64
-    channels: dict[str, F64] = field(default_factory=dict)
+    group: I64
+    base: I64  # the first member's stamp
+    rel: I64  # sum of (stamp - base)
+    members: I64
+    total: F64  # (g, W) sums of valid values
+    valid: F64  # (g, W) valid values counted (float: divided by)
+
+    def take(self, sl: slice) -> _Sums:
+        return _Sums(
+            self.group[sl], self.base[sl], self.rel[sl], self.members[sl], self.total[sl],
+            self.valid[sl],
+        )  # fmt: skip
 
 
 class Decimator:
-    def __init__(self, k: int) -> None:
+    """`quat`: the columns holding a quaternion (averaged on one hemisphere, normalised)."""
+
+    def __init__(self, k: int, quat: slice | None = None) -> None:
         self.k = k
-        self._open: _Open | None = None
+        self.quat = quat
+        self._open: _Sums | None = None  # one group, waiting for more members
+        self._ref: F64 | None = None  # the open group's first quaternion
 
-    def feed(self, seq: I64, t_ns: I64, channels: dict[str, F64]) -> Decimated:
+    def feed(self, seq: I64, t_ns: I64, values: F64) -> Decimated:
         """The messages this batch completes (a group is complete when its last seq arrived or
-        a later group began). `channels`: name -> (N,) or (N, w) float arrays."""
-        if self.k == 1:
-            return Decimated(t_ns, channels, np.ones(t_ns.shape[0], dtype=np.int64))
-        o = self._open
-        if o is not None:
-            seq = np.concatenate((o.seq, seq))
-            t_ns = np.concatenate((o.t_ns, t_ns))
-            channels = {c: np.concatenate((o.channels[c], a)) for c, a in channels.items()}
-        self._open = None
+        a later group began). `seq` rises through the batch; `values` is (N, W)."""
         n = seq.shape[0]
+        if self.k == 1:
+            return Decimated(t_ns, values, np.ones(n, dtype=np.int64))
         if n == 0:
-            return Decimated(t_ns, channels, np.zeros(0, dtype=np.int64))
-        groups = seq // self.k
-        edge = np.empty(n, dtype=np.bool_)
-        edge[0] = True
-        np.not_equal(groups[1:], groups[:-1], out=edge[1:])
-        starts = np.flatnonzero(edge)
-        ends = np.empty_like(starts)
-        ends[:-1], ends[-1] = starts[1:], n
-        done = len(starts)
-        if seq[-1] % self.k != self.k - 1:  # the last group may get more members
-            last = int(starts[-1])
-            self._open = _Open(
-                int(groups[-1]),
-                seq[last:].copy(),
-                t_ns[last:].copy(),
-                {c: a[last:].copy() for c, a in channels.items()},
-            )
-            done -= 1
-        if done == 0:
-            return Decimated(np.zeros(0, np.int64), {}, np.zeros(0, dtype=np.int64))
-        starts, ends = starts[:done], ends[:done]
-        members = ends - starts
-        cut = int(ends[-1])
+            return _empty(values.shape[1])
+        k = self.k
+        groups = seq // k
+        if groups[0] == groups[-1]:  # the usual case when k exceeds a batch: one group
+            starts = np.zeros(1, dtype=np.intp)
+            members = np.array([n], dtype=np.int64)
+        else:
+            starts = np.flatnonzero(np.concatenate(([True], groups[1:] != groups[:-1])))
+            members = np.empty(starts.shape[0], dtype=np.int64)
+            members[:-1] = starts[1:] - starts[:-1]
+            members[-1] = n - starts[-1]
+        o = self._open
+        merge = o is not None and o.group[0] == groups[0]
+        if self.quat is not None:
+            values = self._hemisphere(values, starts, members, merge)
         base = t_ns[starts]
-        rel = t_ns[:cut] - np.repeat(base, members)  # small: no int64 overflow in the sum
-        t_out = base + np.add.reduceat(rel, starts) // members
-        out = {c: _mean(c, a[:cut], starts, members) for c, a in channels.items()}
-        return Decimated(t_out, out, members)
+        rel = np.add.reduceat(t_ns - np.repeat(base, members), starts)
+        nan = np.isnan(values)
+        if nan.any():
+            total = np.add.reduceat(np.where(nan, 0.0, values), starts, axis=0)
+            valid = np.add.reduceat((~nan).astype(np.float64), starts, axis=0)
+        else:
+            total = np.add.reduceat(values, starts, axis=0)
+            valid = np.repeat(members.astype(np.float64)[:, None], values.shape[1], axis=1)
+        s = _Sums(groups[starts], base, rel, members, total, valid)
+        if o is not None:
+            if merge:
+                s.rel[0] += o.rel[0] + int(s.members[0]) * (int(s.base[0]) - int(o.base[0]))
+                s.base[0] = o.base[0]
+                s.members[0] += o.members[0]
+                s.total[0] += o.total[0]
+                s.valid[0] += o.valid[0]
+            else:  # a later group began: the open one is complete
+                s = _concat(o, s)
+        self._open = None
+        if seq[-1] % k != k - 1:  # the last group may get more members
+            self._open = s.take(slice(-1, None))
+            s = s.take(slice(None, -1))
+        return _mean(s, self.quat)
+
+    def _hemisphere(self, v: F64, starts: npt.NDArray[np.intp], members: I64, merge: bool) -> F64:
+        """Each quaternion with the sign that puts it nearest its group's first (q and -q are
+        one orientation; their plain mean would be nothing)."""
+        q = v[:, self.quat]
+        ref = q[starts]
+        if merge and self._ref is not None:
+            ref[0] = self._ref
+        self._ref = ref[-1].copy()
+        flip = np.sum(q * np.repeat(ref, members, axis=0), axis=1) < 0
+        if not flip.any():
+            return v
+        v = v.copy()
+        v[flip, self.quat] *= -1.0
+        return v
 
 
-def _mean(name: str, a: F64, starts: I64, members: I64) -> F64:
-    if name == "orientation":
-        a = _one_hemisphere(a, starts, members)
-    nan = np.isnan(a)
-    if not nan.any():  # the usual case: a plain mean
-        count: npt.NDArray[np.int64] = members if a.ndim == 1 else members[:, None]
-        mean: F64 = np.add.reduceat(a, starts, axis=0) / count
-    else:
-        total = np.add.reduceat(np.where(nan, 0.0, a), starts, axis=0)
-        valid = np.add.reduceat((~nan).astype(np.int64), starts, axis=0)
-        mean = np.divide(total, valid, out=np.full_like(total, np.nan), where=valid > 0)
-    if name == "orientation":
-        norm = np.linalg.norm(mean, axis=1, keepdims=True)
-        mean = np.divide(mean, norm, out=np.full_like(mean, np.nan), where=norm > 0)
-    return mean
+def _empty(width: int) -> Decimated:
+    return Decimated(np.zeros(0, np.int64), np.zeros((0, width)), np.zeros(0, dtype=np.int64))
 
 
-def _one_hemisphere(q: F64, starts: I64, members: I64) -> F64:
-    """Each quaternion with the sign that puts it nearest its group's first (q and -q are one
-    orientation; their plain mean would be nothing)."""
-    ref = np.repeat(q[starts], members, axis=0)
-    flip = np.sum(q * ref, axis=1) < 0
-    out: F64 = np.where(flip[:, None], -q, q)
-    return out
+def _concat(a: _Sums, b: _Sums) -> _Sums:
+    return _Sums(*(np.concatenate((x, y)) for x, y in zip(_fields(a), _fields(b), strict=True)))
+
+
+def _fields(s: _Sums) -> tuple[npt.NDArray[np.generic], ...]:
+    return (s.group, s.base, s.rel, s.members, s.total, s.valid)
+
+
+def _mean(s: _Sums, quat: slice | None) -> Decimated:
+    if not s.members.shape[0]:
+        return _empty(s.total.shape[1])
+    t = s.base + s.rel // s.members
+    if s.valid.all():
+        mean: F64 = s.total / s.valid
+    else:  # a column with no valid member in a group: NaN
+        mean = np.divide(s.total, s.valid, out=np.full_like(s.total, np.nan), where=s.valid > 0)
+    if quat is not None:
+        q = mean[:, quat]
+        norm = np.linalg.norm(q, axis=1, keepdims=True)
+        mean[:, quat] = np.divide(q, norm, out=np.full_like(q, np.nan), where=norm > 0)
+    return Decimated(t, mean, s.members)

@@ -22,7 +22,7 @@ import zenoh
 
 from imud.channels import Channel
 from imud.ros2 import rmw_zenoh as rz
-from imud.ros2.cdr import Layout, layout, messages
+from imud.ros2.cdr import Layout, layout, messages, template
 from imud.ros2.covariance import UNKNOWN, Covariances, covariances
 from imud.ros2.decimate import Decimator, factor
 from imud.rosnames import join
@@ -78,11 +78,21 @@ class _Topic:
 
 
 @dataclass
+class _Feed:
+    """A topic as one device fills it: its messages' constant fields (a cdr.template)."""
+
+    topic: _Topic
+    base: Any
+
+
+@dataclass
 class _Device:
     cfg: DeviceBase
+    cols: dict[Channel, slice]  # where each channel sits in the (N, W) matrix of a batch
+    width: int
     decimator: Decimator
     cov: Covariances  # of its messages at its settings and rate (docs/ros2.md "Covariances")
-    topics: dict[str, _Topic] = field(default_factory=dict)
+    topics: dict[str, _Feed] = field(default_factory=dict)
     last_ns: int = -1  # stamps never step back (a bus restarted, a reload)
     dropped: int = 0
 
@@ -123,7 +133,7 @@ class Ros2Output:
                     dev.last_ns = prev.last_ns
                 new[d.name] = dev
             self._devices = new
-            used = {id(t) for dev in new.values() for t in dev.topics.values()}
+            used = {id(f.topic) for dev in new.values() for f in dev.topics.values()}
             for key, t in list(self._topics.items()):
                 if id(t) not in used:
                     self._undeclare(t)
@@ -134,27 +144,42 @@ class Ros2Output:
 
         s = self.settings
         channels = Channel(registry.CHIPS[d.chip].channels)
+        cols: dict[Channel, slice] = {}
+        width = 0
+        for ch, w in _WIDTHS.items():
+            if channels & ch:
+                cols[ch] = slice(width, width + w)
+                width += w
         rate = d.ros2.rate_hz or s.rate_hz
         k = factor(d.odr_hz, rate)
-        dev = _Device(d, Decimator(k), covariances(_noise(d), d.odr_hz, k))
+        cov = covariances(_noise(d), d.odr_hz, k)
+        dev = _Device(d, cols, width, Decimator(k, cols.get(Channel.ORIENTATION)), cov)
         where = join(s.namespace, d.ros2.namespace or d.name)
         frame = d.ros2.frame_id or s.frame_id
-        wanted: list[tuple[str, str]] = []
+        imu_cov = {
+            "angular_velocity_covariance": cov.gyro,
+            "linear_acceleration_covariance": cov.accel,
+        }
+        wanted: list[tuple[str, str, dict[str, Any]]] = []
         if channels & (Channel.ACCEL | Channel.GYRO):
-            wanted.append(("imu/data_raw", IMU))
+            wanted.append(
+                ("imu/data_raw", IMU, {"orientation_covariance": NO_ORIENTATION, **imu_cov})
+            )
         if channels & Channel.ORIENTATION:
-            wanted.append(("imu/data", IMU))
+            # an orientation whose accuracy no datasheet figure imud has states: unknown
+            # (REP-145, all zero), never -1, which would say there is none
+            wanted.append(("imu/data", IMU, {"orientation_covariance": UNKNOWN, **imu_cov}))
         if channels & Channel.MAG:
-            wanted.append(("imu/mag", MAG))
+            wanted.append(("imu/mag", MAG, {"magnetic_field_covariance": cov.mag}))
         if s.temperature and channels & Channel.TEMPERATURE:
-            wanted.append(("imu/temperature", TEMPERATURE))
-        for rel, type_name in wanted:
+            wanted.append(("imu/temperature", TEMPERATURE, {"variance": 0.0}))
+        for rel, type_name, fixed in wanted:
             key = (join(where, rel), type_name, frame)
             topic = self._topics.get(key)
             if topic is None:
                 topic = self._topics[key] = _Topic(key[0], type_name, layout(type_name, frame))
                 self._declare(topic)
-            dev.topics[rel] = topic
+            dev.topics[rel] = _Feed(topic, template(topic.layout, fixed))
         return dev
 
     def _declare(self, t: _Topic) -> None:
@@ -189,7 +214,7 @@ class Ros2Output:
 
     def topics(self) -> list[str]:
         """Every topic published, for status."""
-        return sorted(t.name for d in self._devices.values() for t in d.topics.values())
+        return sorted(f.topic.name for d in self._devices.values() for f in d.topics.values())
 
     def close(self) -> None:
         with self._lock:
@@ -211,65 +236,56 @@ class Ros2Output:
         except WireError:
             log.exception("%s: a batch the ROS 2 output cannot read", name)
             return
-        if b.kind != KIND_SAMPLES or not b.count:
+        n = b.count
+        if b.kind != KIND_SAMPLES or not n:
             return
-        chans: dict[str, Any] = {}
-        for ch, key in _FIELDS.items():
+        m = np.empty((n, dev.width))
+        for ch, sl in dev.cols.items():
             a = b.channels.get(ch)
-            if a is not None:
-                chans[key] = a.astype(np.float64)
-        if "orientation" in chans:  # w, x, y, z on the wire; x, y, z, w in ROS
-            chans["orientation"] = chans["orientation"][:, [1, 2, 3, 0]]
-        out = dev.decimator.feed(b.seq, b.t_ns, chans)
+            if a is None:
+                m[:, sl] = np.nan
+            elif ch is Channel.ORIENTATION:  # w, x, y, z on the wire; x, y, z, w in ROS
+                m[:, sl] = a[:, _XYZW]
+            else:
+                m[:, sl] = a.reshape(n, -1)
+        out = dev.decimator.feed(b.seq, b.t_ns, m)
         if not out.n:
             return
-        t = out.t_ns
-        keep = t > dev.last_ns
-        if not keep.all():
+        t, v = out.t_ns, out.values
+        if t[0] <= dev.last_ns:
+            keep = t > dev.last_ns
             dev.dropped += int(np.count_nonzero(~keep))
-            t = t[keep]
-            out.channels = {k: v[keep] for k, v in out.channels.items()}
+            t, v = t[keep], v[keep]
             if not t.size:
                 return
         dev.last_ns = int(t[-1])
-        self._publish(dev, t, out.channels)
+        self._publish(dev, t, v)
 
-    def _publish(self, dev: _Device, t: Any, c: dict[str, Any]) -> None:
-        n = t.shape[0]
-        zeros3 = np.zeros((n, 3))
-        cov = dev.cov
+    def _publish(self, dev: _Device, t: Any, v: Any) -> None:
+        cols = dev.cols
+        imu: dict[str, Any] = {}
+        if Channel.GYRO in cols:
+            imu["angular_velocity"] = v[:, cols[Channel.GYRO]]
+        if Channel.ACCEL in cols:
+            imu["linear_acceleration"] = v[:, cols[Channel.ACCEL]]
         raw = dev.topics.get("imu/data_raw")
         if raw is not None:
-            fields = {
-                "orientation": np.zeros(4),
-                "orientation_covariance": NO_ORIENTATION,
-                "angular_velocity": c.get("angular_velocity", zeros3),
-                "angular_velocity_covariance": cov.gyro,
-                "linear_acceleration": c.get("linear_acceleration", zeros3),
-                "linear_acceleration_covariance": cov.accel,
-            }
-            self._put(raw, messages(raw.layout, t, fields))
-        fused = dev.topics.get("imu/data")
-        if fused is not None and "orientation" in c:
-            fields = {
-                "orientation": c["orientation"],
-                # an orientation whose accuracy no datasheet figure imud has states: unknown
-                # (REP-145), never -1, which would say there is none
-                "orientation_covariance": UNKNOWN,
-                "angular_velocity": c.get("angular_velocity", zeros3),
-                "angular_velocity_covariance": cov.gyro,
-                "linear_acceleration": c.get("linear_acceleration", zeros3),
-                "linear_acceleration_covariance": cov.accel,
-            }
-            self._put(fused, messages(fused.layout, t, fields))
-        mag = dev.topics.get("imu/mag")
-        if mag is not None and "magnetic_field" in c:
-            fields = {"magnetic_field": c["magnetic_field"], "magnetic_field_covariance": cov.mag}
-            self._put(mag, messages(mag.layout, t, fields))
-        temp = dev.topics.get("imu/temperature")
-        if temp is not None and "temperature" in c:
-            fields = {"temperature": c["temperature"], "variance": 0.0}
-            self._put(temp, messages(temp.layout, t, fields))
+            self._put(raw.topic, messages(raw.topic.layout, t, imu, raw.base))
+        for rel, ch, name in _OPTIONAL:
+            feed = dev.topics.get(rel)
+            if feed is None:
+                continue
+            x = v[:, cols[ch]]
+            tt = t
+            have = ~np.isnan(x).all(axis=1)
+            if not have.all():  # batches without this channel (a held magnetometer reading)
+                x, tt = x[have], t[have]
+                if not tt.size:
+                    continue
+            fields = {name: x[:, 0] if ch is Channel.TEMPERATURE else x}
+            if ch is Channel.ORIENTATION:
+                fields.update({f: a[have] for f, a in imu.items()})
+            self._put(feed.topic, messages(feed.topic.layout, tt, fields, feed.base))
 
     def _put(self, t: _Topic, records: Any) -> None:
         form = rz.Attachment(self.settings.attachment)
@@ -284,13 +300,21 @@ class Ros2Output:
                     t.bridge.put(payload)
 
 
-_FIELDS = {
-    Channel.ACCEL: "linear_acceleration",
-    Channel.GYRO: "angular_velocity",
-    Channel.MAG: "magnetic_field",
-    Channel.ORIENTATION: "orientation",
-    Channel.TEMPERATURE: "temperature",
+# a device's matrix columns, in this order: what each channel is as a ROS field
+_WIDTHS = {
+    Channel.ACCEL: 3,  # linear_acceleration
+    Channel.GYRO: 3,  # angular_velocity
+    Channel.MAG: 3,  # magnetic_field
+    Channel.ORIENTATION: 4,  # orientation, x, y, z, w
+    Channel.TEMPERATURE: 1,  # temperature
 }
+_XYZW = [1, 2, 3, 0]
+# topics sent only for samples that carry their channel: (topic, channel, field)
+_OPTIONAL = (
+    ("imu/data", Channel.ORIENTATION, "orientation"),
+    ("imu/mag", Channel.MAG, "magnetic_field"),
+    ("imu/temperature", Channel.TEMPERATURE, "temperature"),
+)
 
 
 def _noise(d: DeviceBase) -> NoiseFigures | None:
