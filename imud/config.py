@@ -115,6 +115,13 @@ class Ros2Settings(BaseModel):
         description="at most this many messages a second per device; a faster chip's samples "
         "are averaged over each interval",
     )
+    batch_ms: float = Field(
+        10.0,
+        ge=0.0,
+        le=1000.0,
+        description="publish a device's messages once this much of its stream has arrived: "
+        "fewer, larger steps cost the daemon less CPU; 0: every batch as it arrives",
+    )
     temperature: bool = Field(False, description="also imu/temperature (sensor_msgs/Temperature)")
     reliable: bool = Field(True, description="offer RELIABLE (a DDS reader of either kind matches)")
     depth: int = Field(5, ge=1, le=1000, description="KEEP_LAST depth the publishers offer")

@@ -180,6 +180,7 @@ class Daemon:
             "domain_id": out.domain if out is not None else None,
             "node": r.node,
             "topics": out.topics() if out is not None else [],
+            "messages": out.messages() if out is not None else {},
             "error": self.ros2_error,
         }
 

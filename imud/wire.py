@@ -7,6 +7,7 @@ header's channel mask names, in bit order (`imud.channels`). See docs/wire-forma
 
 from __future__ import annotations
 
+import functools
 import struct
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -132,8 +133,9 @@ def peek(buf: bytes | memoryview) -> tuple[int, int, int, int, int]:
     return first_seq, n, first, last, lost
 
 
-def decode(buf: bytes) -> Batch:
-    """Zero-copy views into `buf`. Raises `WireError` naming what is wrong, and where."""
+def _header(buf: bytes) -> tuple[int, int, int, int, int, int, int, int]:
+    """(kind, name_len, first_seq, count, flags, lost_before, mask, stamps' offset), the
+    batch's size checked against them. Raises `WireError` naming what is wrong, and where."""
     if len(buf) < HEADER.size:
         raise WireError(f"batch too short: {len(buf)} bytes, the header alone is {HEADER.size}")
     magic, version, kind, name_len, first_seq, n, flags, lost, mask = HEADER.unpack_from(buf)
@@ -149,13 +151,24 @@ def decode(buf: bytes) -> Batch:
             f"channel mask 0x{mask:x} at byte 28 names channels this decoder does not know "
             f"(known: 0x{_KNOWN:x}): upgrade imud on the receiving side"
         )
-    chans = [(c, w) for c, bit, w in ORDER if mask & bit]
     off = HEADER.size + name_len + (-name_len) % 8
-    need = off + n * (8 + 4 + 4 * sum(w for _, w in chans))
+    need = off + n * (8 + 4 + 4 * _widths(mask))
     if len(buf) != need:
         raise WireError(
             f"batch of {n} samples with mask 0x{mask:x} needs {need} bytes, got {len(buf)}"
         )
+    return kind, name_len, first_seq, n, flags, lost, mask, off
+
+
+@functools.lru_cache(maxsize=64)
+def _widths(mask: int) -> int:
+    return sum(w for _, bit, w in ORDER if mask & bit)
+
+
+def decode(buf: bytes) -> Batch:
+    """Zero-copy views into `buf`. Raises `WireError` naming what is wrong, and where."""
+    kind, name_len, first_seq, n, flags, lost, mask, off = _header(buf)
+    chans = [(c, w) for c, bit, w in ORDER if mask & bit]
     try:
         device = bytes(buf[HEADER.size : HEADER.size + name_len]).decode()
     except UnicodeDecodeError as e:
@@ -170,3 +183,41 @@ def decode(buf: bytes) -> Batch:
         out[c] = a.reshape(n, width) if width > 1 else a
         off += 4 * width * n
     return Batch(device, kind, first_seq, flags, lost, t, sf, out)
+
+
+Picks = tuple[tuple[Channel, int], ...]  # (channel, component) per column
+
+
+def gather(buf: bytes, picks: Picks) -> tuple[int, int, npt.NDArray[np.int64], F32]:
+    """(kind, first_seq, stamps, values) of a batch, its channels gathered into one (N, C)
+    float32 matrix in a single copy: column j holds component `picks[j][1]` of channel
+    `picks[j][0]`, NaN where the batch does not carry that channel. For a consumer that wants
+    a sample's values side by side. Raises `WireError` as `decode` does."""
+    kind, _, first_seq, n, _, _, mask, off = _header(buf)
+    t = np.frombuffer(buf, "<i8", n, off)
+    width = _widths(mask)
+    values = np.frombuffer(buf, "<f4", width * n, off + 12 * n)
+    index, complete = _gather_index(mask, n, picks)
+    if not complete:  # the missing channels' columns index one NaN past the end
+        values = np.concatenate((values, np.full(1, np.nan, np.float32)))
+    return kind, first_seq, t, values[index]
+
+
+@functools.lru_cache(maxsize=256)
+def _gather_index(mask: int, n: int, picks: Picks) -> tuple[npt.NDArray[np.intp], bool]:
+    start: dict[Channel, tuple[int, int]] = {}
+    at = 0
+    for c, bit, w in ORDER:
+        if mask & bit:
+            start[c] = (at, w)
+            at += w * n
+    rows = np.arange(n)
+    index = np.empty((n, len(picks)), dtype=np.intp)
+    for j, (c, comp) in enumerate(picks):
+        if c in start:
+            first, w = start[c]
+            index[:, j] = first + rows * w + comp
+        else:
+            index[:, j] = at
+    index.setflags(write=False)
+    return index, all(c in start for c, _ in picks)

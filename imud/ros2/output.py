@@ -26,7 +26,7 @@ from imud.ros2.cdr import Layout, layout, messages, template
 from imud.ros2.covariance import UNKNOWN, Covariances, covariances
 from imud.ros2.decimate import Decimator, factor
 from imud.rosnames import join
-from imud.wire import KIND_SAMPLES, WireError, decode
+from imud.wire import KIND_SAMPLES, Picks, WireError, gather, peek
 
 if TYPE_CHECKING:
     from imud.chips.api import DeviceBase, NoiseFigures
@@ -72,7 +72,7 @@ class _Topic:
     token: Any = None  # zenoh.LivelinessToken
     token_key: str = ""
     gid: bytes = b""
-    sent: int = 0  # messages put
+    sent: int = 0  # messages put (rmw_zenoh's attachment numbers them from 1)
     lock: threading.Lock = field(default_factory=threading.Lock)  # the old and new device's
     # relay threads both put during a reload
 
@@ -90,11 +90,14 @@ class _Device:
     cfg: DeviceBase
     cols: dict[Channel, slice]  # where each channel sits in the (N, W) matrix of a batch
     width: int
+    picks: Picks  # the wire's channel components, column by column
     decimator: Decimator
     cov: Covariances  # of its messages at its settings and rate (docs/ros2.md "Covariances")
     topics: dict[str, _Feed] = field(default_factory=dict)
     last_ns: int = -1  # stamps never step back (a bus restarted, a reload)
     dropped: int = 0
+    pending: list[bytes] = field(default_factory=list)  # batches held until [ros2] batch_ms
+    pending_from: int = 0  # the first held sample's stamp
 
 
 class Ros2Output:
@@ -103,6 +106,7 @@ class Ros2Output:
         self.session = session
         self.domain = domain_id(cfg.ros2)
         self.zid = str(session.info.zid())
+        self._hold_ns = int(cfg.ros2.batch_ms * 1e6)
         self._ids = iter(range(1, 1 << 31))  # entity ids, unique within this session
         self._node = session.liveliness().declare_token(
             rz.node_token(self.domain, self.zid, 0, self.settings.namespace, self.settings.node)
@@ -145,15 +149,19 @@ class Ros2Output:
         s = self.settings
         channels = Channel(registry.CHIPS[d.chip].channels)
         cols: dict[Channel, slice] = {}
+        picks: list[tuple[Channel, int]] = []
         width = 0
         for ch, w in _WIDTHS.items():
             if channels & ch:
                 cols[ch] = slice(width, width + w)
                 width += w
+                # a quaternion is w, x, y, z on the wire and x, y, z, w in ROS
+                picks += [(ch, i) for i in (_XYZW if ch is Channel.ORIENTATION else range(w))]
         rate = d.ros2.rate_hz or s.rate_hz
         k = factor(d.odr_hz, rate)
         cov = covariances(_noise(d), d.odr_hz, k)
-        dev = _Device(d, cols, width, Decimator(k, cols.get(Channel.ORIENTATION)), cov)
+        quat = cols.get(Channel.ORIENTATION)
+        dev = _Device(d, cols, width, tuple(picks), Decimator(k, quat), cov)
         where = join(s.namespace, d.ros2.namespace or d.name)
         frame = d.ros2.frame_id or s.frame_id
         imu_cov = {
@@ -216,6 +224,10 @@ class Ros2Output:
         """Every topic published, for status."""
         return sorted(f.topic.name for d in self._devices.values() for f in d.topics.values())
 
+    def messages(self) -> dict[str, int]:
+        """Messages put on each topic since it was declared, for status."""
+        return {t.name: t.sent for t in self._topics.values()}
+
     def close(self) -> None:
         with self._lock:
             for t in self._topics.values():
@@ -227,28 +239,47 @@ class Ros2Output:
 
     # --- the batches --------------------------------------------------------------------------
     def batch(self, name: str, payload: bytes | memoryview) -> None:
-        """One relayed wire batch of device `name`."""
+        """One relayed wire batch of device `name`: held until `[ros2] batch_ms` of the stream
+        has arrived (by the samples' stamps, so how the scheduler ran does not change what is
+        sent), then averaged and published in one step."""
         dev = self._devices.get(name)
         if dev is None:
             return
         try:
-            b = decode(bytes(payload))
-        except WireError:
-            log.exception("%s: a batch the ROS 2 output cannot read", name)
+            _, n, first_ns, last_ns, _ = peek(payload)
+        except Exception:  # struct.error: shorter than a header
+            log.error("%s: a batch too short for the ROS 2 output", name)
             return
-        n = b.count
-        if b.kind != KIND_SAMPLES or not n:
+        if not n:
             return
-        m = np.empty((n, dev.width))
-        for ch, sl in dev.cols.items():
-            a = b.channels.get(ch)
-            if a is None:
-                m[:, sl] = np.nan
-            elif ch is Channel.ORIENTATION:  # w, x, y, z on the wire; x, y, z, w in ROS
-                m[:, sl] = a[:, _XYZW]
-            else:
-                m[:, sl] = a.reshape(n, -1)
-        out = dev.decimator.feed(b.seq, b.t_ns, m)
+        if not dev.pending:
+            dev.pending_from = first_ns
+        dev.pending.append(bytes(payload))
+        if last_ns - dev.pending_from < self._hold_ns:
+            return
+        held, dev.pending = dev.pending, []
+        self._step(name, dev, held)
+
+    def _step(self, name: str, dev: _Device, payloads: list[bytes]) -> None:
+        parts = []
+        for p in payloads:
+            try:
+                kind, first, t_ns, values = gather(p, dev.picks)
+            except WireError:
+                log.exception("%s: a batch the ROS 2 output cannot read", name)
+                continue
+            if kind == KIND_SAMPLES and t_ns.shape[0]:
+                parts.append((first, t_ns, values))
+        if not parts:
+            return
+        seqs = [first + np.arange(t_ns.shape[0], dtype=np.int64) for first, t_ns, _ in parts]
+        if len(parts) == 1:
+            seq, t_ns, m = seqs[0], parts[0][1], parts[0][2].astype(np.float64)
+        else:
+            seq = np.concatenate(seqs)
+            t_ns = np.concatenate([p[1] for p in parts])
+            m = np.concatenate([p[2] for p in parts], dtype=np.float64)
+        out = dev.decimator.feed(seq, t_ns, m)
         if not out.n:
             return
         t, v = out.t_ns, out.values
@@ -293,8 +324,8 @@ class Ros2Output:
         with t.lock:
             for r in records:
                 payload = r.tobytes()
+                t.sent += 1
                 if t.rmw is not None:
-                    t.sent += 1
                     t.rmw.put(payload, attachment=rz.attachment(t.sent, now, t.gid, form))
                 if t.bridge is not None:
                     t.bridge.put(payload)
@@ -308,7 +339,7 @@ _WIDTHS = {
     Channel.ORIENTATION: 4,  # orientation, x, y, z, w
     Channel.TEMPERATURE: 1,  # temperature
 }
-_XYZW = [1, 2, 3, 0]
+_XYZW = (1, 2, 3, 0)
 # topics sent only for samples that carry their channel: (topic, channel, field)
 _OPTIONAL = (
     ("imu/data", Channel.ORIENTATION, "orientation"),
