@@ -181,7 +181,7 @@ class Daemon:
             "node": r.node,
             "topics": out.topics() if out is not None else [],
             "messages": out.messages() if out is not None else {},
-            "error": self.ros2_error,
+            "error": self.ros2_error or (out.error if out is not None else None),
         }
 
     def _start_ros2(self, session: zenoh.Session, cfg: ImudConfig) -> None:

@@ -24,6 +24,7 @@ from imud.channels import Channel
 from imud.ros2 import rmw_zenoh as rz
 from imud.ros2.cdr import Layout, layout, messages, template
 from imud.ros2.covariance import UNKNOWN, Covariances, covariances
+from imud.ros2.dds import DdsError, DdsOutput
 from imud.ros2.decimate import Decimator, factor
 from imud.rosnames import join
 from imud.wire import KIND_SAMPLES, Picks, WireError, gather, peek
@@ -69,6 +70,7 @@ class _Topic:
     layout: Layout
     rmw: Any = None  # zenoh.Publisher on rmw_zenoh's key
     bridge: Any = None  # zenoh.Publisher on the bridge's key
+    dds: Any = None  # a dds writer
     token: Any = None  # zenoh.LivelinessToken
     token_key: str = ""
     gid: bytes = b""
@@ -107,6 +109,16 @@ class Ros2Output:
         self.domain = domain_id(cfg.ros2)
         self.zid = str(session.info.zid())
         self._hold_ns = int(cfg.ros2.batch_ms * 1e6)
+        self.error: str | None = None  # a profile that could not start (the others run)
+        self._dds: DdsOutput | None = None
+        if "dds" in cfg.ros2.profiles:
+            try:
+                self._dds = DdsOutput(
+                    self.domain, cfg.ros2.reliable, cfg.ros2.depth, cfg.ros2.distro != "humble"
+                )
+            except DdsError as e:
+                self.error = f"dds: {e}"
+                log.error("ROS 2 %s; the other profiles run", self.error)
         self._ids = iter(range(1, 1 << 31))  # entity ids, unique within this session
         self._node = session.liveliness().declare_token(
             rz.node_token(self.domain, self.zid, 0, self.settings.namespace, self.settings.node)
@@ -208,6 +220,12 @@ class Ros2Output:
                 else zenoh.Reliability.BEST_EFFORT,
             )
             t.token = self.session.liveliness().declare_token(t.token_key)
+        if self._dds is not None:
+            try:
+                t.dds = self._dds.writer(t.name, t.type_name)
+            except Exception as e:  # cyclonedds' own errors: the other profiles go on
+                self.error = f"dds: {t.name}: {e}"
+                log.error("ROS 2 %s; the other profiles run", self.error)
         if "bridge" in s.profiles:
             # zenoh-bridge-ros2dds routes a ROS topic to the key of its name without the '/'
             t.bridge = self.session.declare_publisher(
@@ -219,6 +237,7 @@ class Ros2Output:
             if ent is not None:
                 with contextlib.suppress(zenoh.ZError):  # the session is closing
                     ent.undeclare()
+        t.dds = None  # Cyclone deletes a writer with its last reference
 
     def topics(self) -> list[str]:
         """Every topic published, for status."""
@@ -236,6 +255,9 @@ class Ros2Output:
             self._devices = {}
             with contextlib.suppress(zenoh.ZError):
                 self._node.undeclare()  # type: ignore[no-untyped-call]
+            if self._dds is not None:
+                self._dds.close()
+                self._dds = None
 
     # --- the batches --------------------------------------------------------------------------
     def batch(self, name: str, payload: bytes | memoryview) -> None:
@@ -329,6 +351,8 @@ class Ros2Output:
                     t.rmw.put(payload, attachment=rz.attachment(t.sent, now, t.gid, form))
                 if t.bridge is not None:
                     t.bridge.put(payload)
+                if t.dds is not None:
+                    t.dds.write_cdr(payload)
 
 
 # a device's matrix columns, in this order: what each channel is as a ROS field
