@@ -12,10 +12,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 import zenoh
 
 import imud.client as ic
 from tests.daemon_fixture import DaemonProc
+
+pytestmark = pytest.mark.slow  # a bus process killed and a reload: ~10 s of real time
 
 IMU_HASH = "RIHS01_7d9a00ff131080897a5ec7e26e315954b8eae3353c3f995c55faf71574000b5b"
 KEY = f"0/imu0/imu/data_raw/sensor_msgs::msg::dds_::Imu_/{IMU_HASH}"
