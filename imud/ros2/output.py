@@ -91,7 +91,6 @@ class _Feed:
 class _Device:
     cfg: DeviceBase
     cols: dict[Channel, slice]  # where each channel sits in the (N, W) matrix of a batch
-    width: int
     picks: Picks  # the wire's channel components, column by column
     decimator: Decimator
     cov: Covariances  # of its messages at its settings and rate (docs/ros2.md "Covariances")
@@ -173,7 +172,7 @@ class Ros2Output:
         k = factor(d.odr_hz, rate)
         cov = covariances(_noise(d), d.odr_hz, k)
         quat = cols.get(Channel.ORIENTATION)
-        dev = _Device(d, cols, width, tuple(picks), Decimator(k, quat), cov)
+        dev = _Device(d, cols, tuple(picks), Decimator(k, quat), cov)
         where = join(s.namespace, d.ros2.namespace or d.name)
         frame = d.ros2.frame_id or s.frame_id
         imu_cov = {
