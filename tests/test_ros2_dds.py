@@ -36,7 +36,7 @@ prefix = "imud"
 
 [ros2]
 enabled = true
-profiles = ["dds"]
+profiles = ["rmw_zenoh", "bridge", "dds"]  # all at once, beside the native stream
 domain_id = 7
 namespace = "/robot1"
 rate_hz = 200
@@ -159,6 +159,14 @@ while session is None and time.monotonic() < end:
     except Exception:
         time.sleep(0.2)
 native_sub = session.declare_subscriber("imud/imu0/imu", zenoh.handlers.FifoChannel(100000))
+others = {
+    name: session.declare_subscriber(key, zenoh.handlers.FifoChannel(100000))
+    for name, key in [
+        ("bridge", "robot1/imu0/imu/data_raw"),
+        ("rmw_zenoh", "7/robot1/imu0/imu/data_raw/**"),
+    ]
+}
+counts = dict.fromkeys(others, 0)
 
 msgs, native = [], []
 end = time.monotonic() + 30
@@ -177,11 +185,15 @@ while len(msgs) < 400 and time.monotonic() < end:
         })
     while (s := native_sub.try_recv()) is not None:
         native.append(base64.b64encode(s.payload.to_bytes()).decode())
+    for name, sub in others.items():
+        while sub.try_recv() is not None:
+            counts[name] += 1
     time.sleep(0.01)
 session.close()
 daemon.send_signal(signal.SIGTERM)
 code = daemon.wait(timeout=20)
-print(json.dumps({"writers": writers, "msgs": msgs, "native": native, "code": code}))
+out = {"writers": writers, "msgs": msgs, "native": native, "counts": counts, "code": code}
+print(json.dumps(out))
 """
 
 
@@ -215,6 +227,8 @@ def test_the_writer_is_what_a_ros_2_node_on_dds_matches(received: dict[str, Any]
 def test_a_dds_reader_receives_the_native_streams_means(received: dict[str, Any]) -> None:
     msgs = received["msgs"]
     assert len(msgs) >= 400, (len(msgs), received["log"])
+    # the same messages went out on the Zenoh profiles too
+    assert received["counts"]["bridge"] > 100 and received["counts"]["rmw_zenoh"] > 100
     assert {m["frame_id"] for m in msgs} == {"imu0_link"}
     # REP-145: no orientation, said with -1 there and only there
     assert all(m["orientation_covariance"][0] == -1.0 for m in msgs)

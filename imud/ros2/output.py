@@ -21,6 +21,7 @@ import numpy as np
 import zenoh
 
 from imud.channels import Channel
+from imud.ros2 import bridge as zb
 from imud.ros2 import rmw_zenoh as rz
 from imud.ros2.cdr import Layout, layout, messages, template
 from imud.ros2.covariance import UNKNOWN, Covariances, covariances
@@ -71,7 +72,8 @@ class _Topic:
     rmw: Any = None  # zenoh.Publisher on rmw_zenoh's key
     bridge: Any = None  # zenoh.Publisher on the bridge's key
     dds: Any = None  # a dds writer
-    token: Any = None  # zenoh.LivelinessToken
+    token: Any = None  # zenoh.LivelinessToken: rmw_zenoh's publisher
+    bridge_token: Any = None  # zenoh.LivelinessToken: the publisher announced to the bridge
     token_key: str = ""
     gid: bytes = b""
     sent: int = 0  # messages put (rmw_zenoh's attachment numbers them from 1)
@@ -226,13 +228,20 @@ class Ros2Output:
                 self.error = f"dds: {t.name}: {e}"
                 log.error("ROS 2 %s; the other profiles run", self.error)
         if "bridge" in s.profiles:
-            # zenoh-bridge-ros2dds routes a ROS topic to the key of its name without the '/'
             t.bridge = self.session.declare_publisher(
-                t.name.lstrip("/"), congestion_control=zenoh.CongestionControl.DROP
+                zb.data_key(t.name),
+                congestion_control=zenoh.CongestionControl.DROP,
+                reliability=zenoh.Reliability.RELIABLE
+                if s.reliable
+                else zenoh.Reliability.BEST_EFFORT,
+            )
+            bridge_hash = None if s.distro == "humble" else type_hash
+            t.bridge_token = self.session.liveliness().declare_token(
+                zb.publisher_token(self.zid, t.name, t.type_name, s.reliable, s.depth, bridge_hash)
             )
 
     def _undeclare(self, t: _Topic) -> None:
-        for ent in (t.rmw, t.bridge, t.token):
+        for ent in (t.rmw, t.bridge, t.token, t.bridge_token):
             if ent is not None:
                 with contextlib.suppress(zenoh.ZError):  # the session is closing
                     ent.undeclare()
