@@ -123,6 +123,11 @@ class Ros2Settings(BaseModel):
         "fewer, larger steps cost the daemon less CPU; 0: every batch as it arrives",
     )
     temperature: bool = Field(False, description="also imu/temperature (sensor_msgs/Temperature)")
+    diagnostics: bool = Field(
+        True,
+        description="each device's health and lost samples once a second on /diagnostics "
+        "(diagnostic_msgs/DiagnosticArray)",
+    )
     reliable: bool = Field(True, description="offer RELIABLE (a DDS reader of either kind matches)")
     depth: int = Field(5, ge=1, le=1000, description="KEEP_LAST depth the publishers offer")
     distro: Literal["humble", "jazzy", "kilted", "rolling"] = Field(

@@ -57,6 +57,7 @@ from imud.zygote import Zygote
 log = logging.getLogger("imud.daemon")
 
 RELOAD_POLL_S = 1.0  # how often the config file's stat is looked at
+ROS2_TICK_S = 1.0  # /diagnostics once a second, as diagnostic_updater publishes
 READY_TIMEOUT_S = 30.0  # READY=1 at the latest this long after start, whatever is still starting
 
 
@@ -317,6 +318,7 @@ class Daemon:
                     self._start_link(w)
                 tg.start_soon(self._supervise)
                 tg.start_soon(self._watch_config)
+                tg.start_soon(self._ros2_ticks)
                 await self._wait_for_stop()
                 self.notifier.notify("STOPPING=1")
                 for w in self.links:
@@ -332,6 +334,19 @@ class Daemon:
                 self.zygote.close()
         log.info("imud stopped")
         return 0
+
+    async def _ros2_ticks(self) -> None:
+        """The ROS 2 output's once-a-second work: /diagnostics from the devices' status, and a
+        calibration file's measured noise into the covariances."""
+        while True:
+            await anyio.sleep(ROS2_TICK_S)
+            out = self.ros2
+            if out is None:
+                continue
+            try:
+                out.tick([v.status().to_json() for v in self.views], ROS2_TICK_S)
+            except Exception:  # a bug there must not stop the daemon
+                log.exception("ROS 2 output: diagnostics failed")
 
     # --- reload ---------------------------------------------------------------------------------
     async def _watch_config(self) -> None:

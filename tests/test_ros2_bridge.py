@@ -150,6 +150,7 @@ def test_every_topic_is_announced_to_the_bridge(daemon: DaemonProc) -> None:
         "robot1/compass/imu/data_raw": "sensor_msgs/msg/Imu",
         "robot1/compass/imu/data": "sensor_msgs/msg/Imu",
         "robot1/compass/imu/mag": "sensor_msgs/msg/MagneticField",
+        "diagnostics": "diagnostic_msgs/msg/DiagnosticArray",  # /diagnostics, never namespaced
     }
     assert {k: p["type"] for k, p in parsed.items()} == want
     for p in parsed.values():

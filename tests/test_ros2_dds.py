@@ -77,7 +77,7 @@ from cyclonedds.core import Policy, Qos
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.annotations import extensibility
-from cyclonedds.idl.types import array, float64, int32, uint32
+from cyclonedds.idl.types import array, byte, float64, int32, sequence, uint32
 
 Cov = array[float64, 9]
 
@@ -119,6 +119,27 @@ class Imu(IdlStruct, typename="sensor_msgs::msg::dds_::Imu_"):
     linear_acceleration: Vector3
     linear_acceleration_covariance: Cov
 
+@extensibility("final")
+@dataclass
+class KeyValue(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
+    key: str
+    value: str
+
+@extensibility("final")
+@dataclass
+class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
+    level: byte
+    name: str
+    message: str
+    hardware_id: str
+    values: sequence[KeyValue]
+
+@extensibility("final")
+@dataclass
+class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticArray_"):
+    header: Header
+    status: sequence[DiagnosticStatus]
+
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
@@ -130,6 +151,7 @@ qos = Qos(
     Policy.DataRepresentation(use_cdrv0_representation=True),
 )
 reader = DataReader(dp, Topic(dp, TOPIC, Imu), qos=qos)
+diag_reader = DataReader(dp, Topic(dp, "rt/diagnostics", DiagnosticArray), qos=qos)
 pubs = BuiltinDataReader(dp, BuiltinTopicDcpsPublication)
 
 # the writer as discovery announces it (read before the data: its QoS is what a ROS node matches)
@@ -189,10 +211,20 @@ while len(msgs) < 400 and time.monotonic() < end:
         while sub.try_recv() is not None:
             counts[name] += 1
     time.sleep(0.01)
+diagnostics = []
+end = time.monotonic() + 5
+while not diagnostics and time.monotonic() < end:
+    for d in diag_reader.take(N=10):
+        diagnostics.append([
+            {"level": s.level, "name": s.name, "values": {kv.key: kv.value for kv in s.values}}
+            for s in d.status
+        ])
+    time.sleep(0.05)
 session.close()
 daemon.send_signal(signal.SIGTERM)
 code = daemon.wait(timeout=20)
-out = {"writers": writers, "msgs": msgs, "native": native, "counts": counts, "code": code}
+out = {"diagnostics": diagnostics, "writers": writers, "msgs": msgs, "native": native,
+       "counts": counts, "code": code}
 print(json.dumps(out))
 """
 
@@ -254,3 +286,10 @@ def test_a_dds_reader_receives_the_native_streams_means(received: dict[str, Any]
     for m, (g, a) in matched:
         np.testing.assert_allclose(m["gyro"], g, rtol=1e-6, atol=1e-9)
         np.testing.assert_allclose(m["accel"], a, rtol=1e-6, atol=1e-7)
+
+
+def test_a_dds_reader_receives_the_diagnostics(received: dict[str, Any]) -> None:
+    (first, *_) = received["diagnostics"]
+    (status,) = first
+    assert status["name"] == "imud: imu0" and status["values"]["state"] == "running"
+    assert int(status["values"]["samples"]) > 0

@@ -86,6 +86,23 @@ class TempTable(_Strict):
         return self
 
 
+class NoiseTable(_Strict):
+    """The white noise measured in a calibration's still data (imud/calib/noise.py): one-sided
+    density per axis of the corrected output, so a T-second mean has variance density^2 / (2 T).
+    The ROS 2 output's covariances use it in place of the datasheet's figure."""
+
+    density: Vec3
+    still_s: float = Field(gt=0)
+    intervals: int = Field(1, ge=1)
+    date: str | None = None
+
+    @model_validator(mode="after")
+    def _positive(self) -> NoiseTable:
+        if not all(math.isfinite(d) and d > 0 for d in self.density):
+            raise ValueError(f"density = {list(self.density)}: every axis must be above zero")
+        return self
+
+
 class SensorTable(_Strict):
     """corrected = matrix @ (raw - bias - temperature term)."""
 
@@ -102,6 +119,7 @@ class SensorTable(_Strict):
     fit: FitTable | None = None
     notes: list[str] = Field(default_factory=list)
     temperature: TempTable | None = None
+    noise: NoiseTable | None = None
 
     @model_validator(mode="after")
     def _one_of(self) -> SensorTable:
@@ -372,8 +390,25 @@ def with_affine(cf: CalibrationFile, est: AffineEstimate, source: str) -> Calibr
         fit=_fit_table(est.fit.names, est.fit.values, est.fit.covariance),
         notes=list(est.verdict.reasons),
         temperature=None if old is None else old.temperature,
+        noise=None if old is None else old.noise,  # until this procedure measures it anew
     )
     return cf.model_copy(update={est.sensor: table, "written": now_iso()})
+
+
+def with_noise(
+    cf: CalibrationFile, sensor: str, density: Any, still_s: float, intervals: int
+) -> CalibrationFile:
+    """`cf` with `sensor`'s measured noise replaced (its table must exist)."""
+    old = cf.sensor(sensor)
+    if old is None:
+        raise ValueError(f"no [{sensor}] table to add noise to")
+    noise = NoiseTable(
+        density=tuple(float(x) for x in density),
+        still_s=still_s,
+        intervals=intervals,
+        date=now_iso(),
+    )
+    return cf.model_copy(update={sensor: old.model_copy(update={"noise": noise})})
 
 
 def with_temperature(cf: CalibrationFile, est: TempEstimate, source: str) -> CalibrationFile:

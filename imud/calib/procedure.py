@@ -17,8 +17,16 @@ import numpy as np
 import numpy.typing as npt
 
 from imud.calib.estimate import AffineEstimate, Fit, TempEstimate
-from imud.calib.file import CalibrationFile, sensor_model, with_affine, with_temperature
+from imud.calib.file import (
+    CalibrationFile,
+    sensor_model,
+    with_affine,
+    with_noise,
+    with_temperature,
+)
+from imud.calib.noise import measured_density, shortfall
 from imud.calib.recording import Recording
+from imud.calib.still import StillInterval
 from imud.units import STANDARD_GRAVITY
 
 F64 = npt.NDArray[np.float64]
@@ -115,8 +123,29 @@ def temp_report(est: TempEstimate) -> dict[str, Any]:
     }
 
 
-def _affine_update(est: AffineEstimate) -> Callable[[CalibrationFile, str], CalibrationFile]:
-    return lambda cf, source: with_affine(cf, est, source)
+def _affine_update(
+    est: AffineEstimate, rec: Recording, still: list[StillInterval], report: dict[str, Any]
+) -> Callable[[CalibrationFile, str], CalibrationFile]:
+    """Bias and matrix, and the sensor's white noise measured in the still data (for its ROS 2
+    covariances) when there is enough of it; the report says which."""
+    sensor = est.sensor
+    assert sensor in ("accel", "gyro")
+    noise = measured_density(still, sensor, rec.rate_hz, est.matrix)
+    if noise is None:
+        report["noise"] = {"measured": False, "reason": shortfall(still, rec.rate_hz)}
+        return lambda cf, source: with_affine(cf, est, source)
+    report["noise"] = {
+        "measured": True,
+        "density": _floats(noise.density),
+        "still_s": noise.still_s,
+        "intervals": noise.intervals,
+    }
+
+    def update(cf: CalibrationFile, source: str) -> CalibrationFile:
+        new = with_affine(cf, est, source)
+        return with_noise(new, sensor, noise.density, noise.still_s, noise.intervals)
+
+    return update
 
 
 # --- the procedures ------------------------------------------------------------------------------
@@ -146,7 +175,7 @@ def run_accel(
         est.verdict.accepted,
         reasons,
         report,
-        _affine_update(est),
+        _affine_update(est, rec, res.intervals, report),
         {"poses": report["poses"]},
     )
 
@@ -169,7 +198,12 @@ def run_mag(rec: Recording, field_t: float | None) -> Outcome:
     }
     plot = {"raw": rec.mag, "bias": est.bias, "matrix": est.matrix}
     return Outcome(
-        "mag", est.verdict.accepted, list(est.verdict.reasons), report, _affine_update(est), plot
+        "mag",
+        est.verdict.accepted,
+        list(est.verdict.reasons),
+        report,
+        lambda cf, source: with_affine(cf, est, source),
+        plot,
     )
 
 
@@ -277,12 +311,13 @@ def run_gyro(
     one, corrects the gravity directions first, so the gyro lands in the calibrated frame.
     With the latitude, Earth's rotation is modelled (imud/calib/gyro.py)."""
     from imud.calib.gyro import fit_gyro_bias
-    from imud.calib.still import check_still
+    from imud.calib.still import check_still, find_still, interval_stats
 
     notes: list[str] = []
     rec = _gravity_corrected(rec, cf, notes)
     if check_still(rec).still:
         est = fit_gyro_bias(rec, latitude_deg, significance)
+        still = [interval_stats(rec, 0, rec.n)]
     else:
         if cf is None or cf.accel is None:
             notes.append(
@@ -291,6 +326,7 @@ def run_gyro(
                 "(calibrate accel first, into the same file)"
             )
         est = _fit_full(rec, full_turns, min_still_s, latitude_deg, significance)
+        still = find_still(rec, min_s=min_still_s)
     report = affine_report(est)
     report["notes"] = notes
     d = est.fit.details
@@ -300,6 +336,5 @@ def run_gyro(
         report["earth_rotation"] = earth
     if d.get("motions"):
         report["motions"] = d["motions"]
-    return Outcome(
-        "gyro", est.verdict.accepted, list(est.verdict.reasons), report, _affine_update(est)
-    )
+    update = _affine_update(est, rec, still, report)
+    return Outcome("gyro", est.verdict.accepted, list(est.verdict.reasons), report, update)

@@ -22,7 +22,10 @@ rate repeats each reading for `mag_hold` samples: its correlation is the hold's 
 rho(m) = max(0, 1 - m / hold). Axes are taken independent and alike: a diagonal 3x3 matrix,
 row-major, as sensor_msgs wants it.
 
-A chip whose spec states no noise keeps REP-145's "unknown": all zeros. Pure functions: the output
+A calibration file that carries measured noise (imud/calib/noise.py: per-axis densities from
+its still data) replaces the datasheet's density, axis by axis; the chip's bandwidth and the
+correlation model stay. A chip whose spec states no noise, and no measured noise, keeps REP-145's
+"unknown": all zeros. Pure functions: the output
 computes them once per device when it builds the device's publishers, never per message.
 """
 
@@ -86,22 +89,38 @@ class Covariances:
     mag: F64
 
 
-def covariances(noise: NoiseFigures | None, odr_hz: float, k: int) -> Covariances:
-    """A device's covariances for messages that average k samples of its odr_hz stream."""
-    if noise is None:
-        return Covariances(UNKNOWN, UNKNOWN, UNKNOWN)
+def covariances(
+    noise: NoiseFigures | None,
+    odr_hz: float,
+    k: int,
+    measured: dict[str, F64] | None = None,
+) -> Covariances:
+    """A device's covariances for messages that average k samples of its odr_hz stream.
+    `measured`: per sensor ("accel", "gyro"), the (3,) densities a calibration file measured
+    (imud/calib/noise.py), used per axis in place of the datasheet's; their bandwidth is the
+    chip's at its settings, or the output's Nyquist when its spec states none."""
+    measured = measured or {}
     lags = np.arange(k)
 
-    def sensor(density: float, bandwidth_hz: float) -> F64:
-        rho = first_order_correlation(bandwidth_hz, odr_hz, lags)
-        return diagonal(mean_variance(sample_variance(density, bandwidth_hz), k, rho))
+    def sensor(name: str, density: float | None, bandwidth_hz: float | None) -> F64:
+        axes = measured.get(name)
+        if axes is None and density is None:
+            return UNKNOWN
+        b = bandwidth_hz if bandwidth_hz is not None else odr_hz / 2.0
+        rho = first_order_correlation(b, odr_hz, lags)
+        d = np.broadcast_to(np.asarray(density if axes is None else axes, dtype=np.float64), 3)
+        out = np.zeros(9)
+        out[[0, 4, 8]] = [mean_variance(sample_variance(float(x), b), k, rho) for x in d]
+        return out
 
     mag = UNKNOWN
-    if noise.mag_sigma_t is not None:
+    if noise is not None and noise.mag_sigma_t is not None:
         rho = held_correlation(noise.mag_hold, lags)
         mag = diagonal(mean_variance(noise.mag_sigma_t**2, k, rho))
+    if noise is None:
+        return Covariances(sensor("accel", None, None), sensor("gyro", None, None), mag)
     return Covariances(
-        accel=sensor(noise.accel_density, noise.accel_bandwidth_hz),
-        gyro=sensor(noise.gyro_density, noise.gyro_bandwidth_hz),
+        accel=sensor("accel", noise.accel_density, noise.accel_bandwidth_hz),
+        gyro=sensor("gyro", noise.gyro_density, noise.gyro_bandwidth_hz),
         mag=mag,
     )

@@ -41,6 +41,7 @@ def _types() -> dict[str, Any]:
         "sensor_msgs/msg/Imu": t.Imu,
         "sensor_msgs/msg/MagneticField": t.MagneticField,
         "sensor_msgs/msg/Temperature": t.Temperature,
+        "diagnostic_msgs/msg/DiagnosticArray": t.DiagnosticArray,
     }
 
 

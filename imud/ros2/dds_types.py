@@ -1,5 +1,6 @@
-"""sensor_msgs Imu, MagneticField and Temperature as the DDS types ROS 2 names them
-(`<pkg>::msg::dds_::<Type>_`, final, from the .msg definitions), for Cyclone DDS.
+"""sensor_msgs Imu, MagneticField and Temperature, and diagnostic_msgs DiagnosticArray, as the DDS
+types ROS 2 names them (`<pkg>::msg::dds_::<Type>_`, final, from the .msg definitions), for
+Cyclone DDS.
 
 Imported only by the `dds` profile, with cyclonedds installed. No `from __future__ import
 annotations`: cyclonedds reads these annotations as types at class creation.
@@ -9,7 +10,7 @@ from dataclasses import dataclass
 
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.annotations import extensibility
-from cyclonedds.idl.types import array, float64, int32, uint32
+from cyclonedds.idl.types import array, byte, float64, int32, sequence, uint32
 
 Cov = array[float64, 9]  # type: ignore[type-arg,valid-type]  # a row-major 3x3 covariance
 
@@ -71,3 +72,27 @@ class Temperature(IdlStruct, typename="sensor_msgs::msg::dds_::Temperature_"):
     header: Header
     temperature: float64
     variance: float64
+
+
+@extensibility("final")
+@dataclass
+class KeyValue(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
+    key: str
+    value: str
+
+
+@extensibility("final")
+@dataclass
+class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
+    level: byte
+    name: str
+    message: str
+    hardware_id: str
+    values: sequence[KeyValue]  # type: ignore[type-arg]
+
+
+@extensibility("final")
+@dataclass
+class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticArray_"):
+    header: Header
+    status: sequence[DiagnosticStatus]  # type: ignore[type-arg]

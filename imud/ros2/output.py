@@ -14,7 +14,9 @@ import logging
 import os
 import threading
 import time
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Iterator
+from dataclasses import astuple, dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -22,6 +24,7 @@ import zenoh
 
 from imud.channels import Channel
 from imud.ros2 import bridge as zb
+from imud.ros2 import diagnostics as diag
 from imud.ros2 import rmw_zenoh as rz
 from imud.ros2.cdr import Layout, layout, messages, template
 from imud.ros2.covariance import UNKNOWN, Covariances, covariances
@@ -68,7 +71,7 @@ class _Topic:
 
     name: str
     type_name: str
-    layout: Layout
+    layout: Layout | None  # None: not a fixed-layout message (diagnostics)
     rmw: Any = None  # zenoh.Publisher on rmw_zenoh's key
     bridge: Any = None  # zenoh.Publisher on the bridge's key
     dds: Any = None  # a dds writer
@@ -96,7 +99,8 @@ class _Device:
     picks: Picks  # the wire's channel components, column by column
     decimator: Decimator
     cov: Covariances  # of its messages at its settings and rate (docs/ros2.md "Covariances")
-    topics: dict[str, _Feed] = field(default_factory=dict)
+    topics: dict[str, _Feed] = field(default_factory=dict)  # replaced whole, never edited
+    calibration: Signature = None  # the calibration file its covariances were read from
     last_ns: int = -1  # stamps never step back (a bus restarted, a reload)
     dropped: int = 0
     pending: list[bytes] = field(default_factory=list)  # batches held until [ros2] batch_ms
@@ -129,6 +133,12 @@ class Ros2Output:
         self._topics: dict[tuple[str, str, str], _Topic] = {}
         self._devices: dict[str, _Device] = {}
         self._lock = threading.Lock()  # declaring and undeclaring (event loop) only
+        self._diagnostics: _Topic | None = None
+        self._lost: dict[str, int] = {}  # each device's lost samples at the last report
+        if cfg.ros2.diagnostics:
+            self._diagnostics = _Topic(diag.TOPIC, diag.TYPE_NAME, None)
+            self._topics[(diag.TOPIC, diag.TYPE_NAME, "")] = self._diagnostics
+            self._declare(self._diagnostics)
         self.reconfigure(cfg)
 
     # --- what goes out ------------------------------------------------------------------------
@@ -151,6 +161,8 @@ class Ros2Output:
                 new[d.name] = dev
             self._devices = new
             used = {id(f.topic) for dev in new.values() for f in dev.topics.values()}
+            if self._diagnostics is not None:
+                used.add(id(self._diagnostics))
             for key, t in list(self._topics.items()):
                 if id(t) not in used:
                     self._undeclare(t)
@@ -170,11 +182,17 @@ class Ros2Output:
                 width += w
                 # a quaternion is w, x, y, z on the wire and x, y, z, w in ROS
                 picks += [(ch, i) for i in (_XYZW if ch is Channel.ORIENTATION else range(w))]
-        rate = d.ros2.rate_hz or s.rate_hz
-        k = factor(d.odr_hz, rate)
-        cov = covariances(_noise(d), d.odr_hz, k)
+        k = factor(d.odr_hz, d.ros2.rate_hz or s.rate_hz)
         quat = cols.get(Channel.ORIENTATION)
-        dev = _Device(d, cols, tuple(picks), Decimator(k, quat), cov)
+        sig = _signature(d.calibration)
+        cov = covariances(_noise(d), d.odr_hz, k, _measured(d))
+        dev = _Device(d, cols, tuple(picks), Decimator(k, quat), cov, calibration=sig)
+        dev.topics = self._feeds(d, channels, cov)
+        return dev
+
+    def _feeds(self, d: DeviceBase, channels: Channel, cov: Covariances) -> dict[str, _Feed]:
+        """The device's topics (declared when new) with their messages' constant fields."""
+        s = self.settings
         where = join(s.namespace, d.ros2.namespace or d.name)
         frame = d.ros2.frame_id or s.frame_id
         imu_cov = {
@@ -194,14 +212,15 @@ class Ros2Output:
             wanted.append(("imu/mag", MAG, {"magnetic_field_covariance": cov.mag}))
         if s.temperature and channels & Channel.TEMPERATURE:
             wanted.append(("imu/temperature", TEMPERATURE, {"variance": 0.0}))
+        feeds: dict[str, _Feed] = {}
         for rel, type_name, fixed in wanted:
             key = (join(where, rel), type_name, frame)
             topic = self._topics.get(key)
             if topic is None:
                 topic = self._topics[key] = _Topic(key[0], type_name, layout(type_name, frame))
                 self._declare(topic)
-            dev.topics[rel] = _Feed(topic, template(topic.layout, fixed))
-        return dev
+            feeds[rel] = _Feed(topic, template(_lay(topic), fixed))
+        return feeds
 
     def _declare(self, t: _Topic) -> None:
         s = self.settings
@@ -267,6 +286,37 @@ class Ros2Output:
                 self._dds.close()
                 self._dds = None
 
+    # --- once a second -------------------------------------------------------------------------
+    def tick(self, devices: list[dict[str, Any]], period_s: float = 1.0) -> None:
+        """Called by the daemon every `period_s` with its devices' status JSON: publishes
+        /diagnostics, and takes up the measured noise of a calibration file that changed."""
+        for dev in list(self._devices.values()):
+            sig = _signature(dev.cfg.calibration)
+            if sig != dev.calibration:
+                dev.calibration = sig
+                self._refresh_covariances(dev)
+        t = self._diagnostics
+        if t is None:
+            return
+        statuses = []
+        for d in devices:
+            name = str(d.get("name"))
+            statuses.append(diag.device_status(d, self._lost.get(name), period_s))
+            self._lost[name] = int(d.get("lost_samples", 0))
+        self._put(t, [diag.encode(time.time_ns(), statuses)])
+
+    def _refresh_covariances(self, dev: _Device) -> None:
+        from imud import registry
+
+        d = dev.cfg
+        cov = covariances(_noise(d), d.odr_hz, dev.decimator.k, _measured(d))
+        if all(np.array_equal(a, b) for a, b in zip(astuple(cov), astuple(dev.cov), strict=True)):
+            return
+        with self._lock:
+            dev.cov = cov
+            dev.topics = self._feeds(d, Channel(registry.CHIPS[d.chip].channels), cov)
+        log.info("%s: ROS 2 covariances now from %s", d.name, d.calibration)
+
     # --- the batches --------------------------------------------------------------------------
     def batch(self, name: str, payload: bytes | memoryview) -> None:
         """One relayed wire batch of device `name`: held until `[ros2] batch_ms` of the stream
@@ -331,7 +381,7 @@ class Ros2Output:
             imu["linear_acceleration"] = v[:, cols[Channel.ACCEL]]
         raw = dev.topics.get("imu/data_raw")
         if raw is not None:
-            self._put(raw.topic, messages(raw.topic.layout, t, imu, raw.base))
+            self._put(raw.topic, _cdr(messages(_lay(raw.topic), t, imu, raw.base)))
         for rel, ch, name in _OPTIONAL:
             feed = dev.topics.get(rel)
             if feed is None:
@@ -346,14 +396,13 @@ class Ros2Output:
             fields = {name: x[:, 0] if ch is Channel.TEMPERATURE else x}
             if ch is Channel.ORIENTATION:
                 fields.update({f: a[have] for f, a in imu.items()})
-            self._put(feed.topic, messages(feed.topic.layout, tt, fields, feed.base))
+            self._put(feed.topic, _cdr(messages(_lay(feed.topic), tt, fields, feed.base)))
 
-    def _put(self, t: _Topic, records: Any) -> None:
+    def _put(self, t: _Topic, payloads: Iterable[bytes]) -> None:
         form = rz.Attachment(self.settings.attachment)
         now = time.time_ns()
         with t.lock:
-            for r in records:
-                payload = r.tobytes()
+            for payload in payloads:
                 t.sent += 1
                 if t.rmw is not None:
                     t.rmw.put(payload, attachment=rz.attachment(t.sent, now, t.gid, form))
@@ -378,6 +427,49 @@ _OPTIONAL = (
     ("imu/mag", Channel.MAG, "magnetic_field"),
     ("imu/temperature", Channel.TEMPERATURE, "temperature"),
 )
+
+
+def _lay(t: _Topic) -> Layout:
+    assert t.layout is not None  # every device topic has one
+    return t.layout
+
+
+def _cdr(records: Any) -> Iterator[bytes]:
+    return (r.tobytes() for r in records)
+
+
+Signature = tuple[int, int, int] | None
+
+
+def _signature(path: Path | None) -> Signature:
+    if path is None:
+        return None
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return (st.st_mtime_ns, st.st_size, st.st_ino)
+
+
+def _measured(d: DeviceBase) -> dict[str, Any]:
+    """The per-axis noise densities the device's calibration file measured, by sensor; empty
+    when it has none or cannot be read (the device's status says why it is not applied)."""
+    from imud.calib.file import CalibrationError, read_calibration
+
+    if d.calibration is None:
+        return {}
+    try:
+        cf = read_calibration(d.calibration)
+    except CalibrationError:
+        return {}
+    if cf.chip is not None and cf.chip != d.chip:
+        return {}
+    out = {}
+    for name in ("accel", "gyro"):
+        table = cf.sensor(name)
+        if table is not None and table.noise is not None:
+            out[name] = np.asarray(table.noise.density, dtype=np.float64)
+    return out
 
 
 def _noise(d: DeviceBase) -> NoiseFigures | None:

@@ -39,6 +39,9 @@ TYPE_HASHES = {
     "sensor_msgs/msg/Temperature": (
         "RIHS01_72514a14126ab9f8a9abec974c78e5610a367b59db5da355ff1fb982d5bad4b8"
     ),
+    "diagnostic_msgs/msg/DiagnosticArray": (
+        "RIHS01_5a8a36efb05fb25070fa0fb3810290c0e6cd4862b54a8fb975a1ee8dc55a333e"
+    ),
 }
 NO_TYPE_HASH = "TypeHashNotSupported"  # Humble's rmw_zenoh, which has no type hashes
 GID_SIZE = 16
