@@ -25,6 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from imud.atomicfile import write_atomic
 from imud.calib.estimate import AffineEstimate, TempEstimate
 from imud.calib.model import CalibrationModel, SensorModel, TempPoly
+from imud.calib.noise import MeasuredNoise
 from imud.channels import Channel
 
 Vec3 = tuple[float, float, float]
@@ -88,12 +89,13 @@ class TempTable(_Strict):
 
 class NoiseTable(_Strict):
     """The white noise measured in a calibration's still data (imud/calib/noise.py): one-sided
-    density per axis of the corrected output, so a T-second mean has variance density^2 / (2 T).
-    The ROS 2 output's covariances use it in place of the datasheet's figure."""
+    density per axis of the corrected output (the two-sample variance at tau_s is
+    density^2 / (2 tau_s)). The ROS 2 output's covariances use it in place of the datasheet's."""
 
     density: Vec3
+    tau_s: float = Field(gt=0)
+    differences: int = Field(ge=1)
     still_s: float = Field(gt=0)
-    intervals: int = Field(1, ge=1)
     date: str | None = None
 
     @model_validator(mode="after")
@@ -395,17 +397,16 @@ def with_affine(cf: CalibrationFile, est: AffineEstimate, source: str) -> Calibr
     return cf.model_copy(update={est.sensor: table, "written": now_iso()})
 
 
-def with_noise(
-    cf: CalibrationFile, sensor: str, density: Any, still_s: float, intervals: int
-) -> CalibrationFile:
+def with_noise(cf: CalibrationFile, sensor: str, measured: MeasuredNoise) -> CalibrationFile:
     """`cf` with `sensor`'s measured noise replaced (its table must exist)."""
     old = cf.sensor(sensor)
     if old is None:
         raise ValueError(f"no [{sensor}] table to add noise to")
     noise = NoiseTable(
-        density=tuple(float(x) for x in density),
-        still_s=still_s,
-        intervals=intervals,
+        density=tuple(float(x) for x in measured.density),
+        tau_s=measured.tau_s,
+        differences=measured.differences,
+        still_s=measured.still_s,
         date=now_iso(),
     )
     return cf.model_copy(update={sensor: old.model_copy(update={"noise": noise})})

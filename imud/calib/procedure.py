@@ -130,20 +130,20 @@ def _affine_update(
     covariances) when there is enough of it; the report says which."""
     sensor = est.sensor
     assert sensor in ("accel", "gyro")
-    noise = measured_density(still, sensor, rec.rate_hz, est.matrix)
+    noise = measured_density(rec, still, sensor, est.matrix)
     if noise is None:
         report["noise"] = {"measured": False, "reason": shortfall(still, rec.rate_hz)}
         return lambda cf, source: with_affine(cf, est, source)
     report["noise"] = {
         "measured": True,
         "density": _floats(noise.density),
+        "tau_s": noise.tau_s,
+        "differences": noise.differences,
         "still_s": noise.still_s,
-        "intervals": noise.intervals,
     }
 
     def update(cf: CalibrationFile, source: str) -> CalibrationFile:
-        new = with_affine(cf, est, source)
-        return with_noise(new, sensor, noise.density, noise.still_s, noise.intervals)
+        return with_noise(with_affine(cf, est, source), sensor, noise)
 
     return update
 
