@@ -38,5 +38,9 @@ timeout 6 ros2 topic hz "$topic" || true
 step "ros2 topic info -v $topic: a publisher on node imud, RELIABLE, KEEP_LAST 5"
 timeout 10 ros2 topic info -v "$topic" || bad "topic info failed"
 
+step "ros2 topic echo --once /diagnostics: a status 'imud: $dev', level 0 (OK) and 'running at ... Hz'"
+diag=$(timeout 10 ros2 topic echo --once /diagnostics 2>&1); echo "$diag"
+grep -qF "imud: $dev" <<<"$diag" || bad "no status for $dev on /diagnostics ([ros2] diagnostics = true?)"
+
 [ "$fail" -eq 0 ] && printf '\nall checks OK\n' || printf '\nsome checks NOT OK (above)\n'
 exit "$fail"
