@@ -182,6 +182,7 @@ class Daemon:
             "node": r.node,
             "topics": out.topics() if out is not None else [],
             "messages": out.messages() if out is not None else {},
+            "dropped": out.dropped() if out is not None else {},
             "error": self.ros2_error or (out.error if out is not None else None),
         }
 

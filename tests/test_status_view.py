@@ -34,3 +34,23 @@ def test_chip_status_is_shown_on_its_own_line() -> None:
     assert "stim0: 3 crc errors" in text  # a counter its spec declares, among the device's
     assert "resyncs" not in line  # zero: nothing to say
     assert "status counts STARTUP=1352" in line and "calibration sys=3 gyro=3" in line
+
+
+def test_the_ros2_output_has_a_line_naming_a_profile_that_did_not_start() -> None:
+    ros2 = {
+        "profiles": ["rmw_zenoh", "dds"],
+        "domain_id": 3,
+        "node": "imud",
+        "topics": ["/imu0/imu/data_raw", "/diagnostics"],
+        "messages": {"/imu0/imu/data_raw": 4000, "/diagnostics": 20},
+        "dropped": {"imu0": 2},
+        "error": "dds: the dds profile needs Cyclone DDS",
+    }
+    console = Console(width=300, record=True)
+    st = {"version": "x", "uptime_s": 1, "devices": [], "ros2": ros2}
+    for r in status_view(st, "tcp/x:1", console):
+        console.print(r)
+    (line,) = [ln for ln in console.export_text().splitlines() if ln.startswith("ROS 2")]
+    assert line.startswith("ROS 2 (rmw_zenoh, dds) domain 3, node imud: 2 topics, 4020 messages")
+    assert "not sent, stamp not after the last: imu0 2" in line
+    assert line.endswith("; dds: the dds profile needs Cyclone DDS")

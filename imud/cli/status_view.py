@@ -138,6 +138,9 @@ def status_view(st: dict[str, Any], endpoint: str, console: Console) -> list[Ren
             text = Text(f"{d['name']} gyro bias tracking: ", style="bold")
             text.append(_tracking_line(tracking))
             out.append(cut(text, width))
+    ros2 = st.get("ros2")
+    if ros2:
+        out.append(cut(_ros2_line(ros2), width))
     for b in st.get("buses", []):
         if b.get("restarts") or b.get("last_error"):
             line = f"bus {b['bus']}: process restarted {b.get('restarts', 0)} times"
@@ -145,6 +148,27 @@ def status_view(st: dict[str, Any], endpoint: str, console: Console) -> list[Ren
                 line += f"; last error: {b['last_error']}"
             out.append(cut(Text(line), width))
     return out
+
+
+def _ros2_line(r: dict[str, Any]) -> Text:
+    """`ROS 2 (rmw_zenoh, dds) domain 0, node imud: 7 topics, 12345 messages`, then what went
+    wrong: a profile that did not start, messages dropped for a stamp that stepped back."""
+    from rich.text import Text
+
+    topics = r.get("topics") or []
+    sent = sum((r.get("messages") or {}).values())
+    text = Text("ROS 2 ", style="bold")
+    text.append(
+        f"({', '.join(r.get('profiles') or [])}) domain {r.get('domain_id')}, node "
+        f"{r.get('node')}: {len(topics)} topics, {sent} messages"
+    )
+    dropped = r.get("dropped") or {}
+    if dropped:
+        each = ", ".join(f"{k} {v}" for k, v in sorted(dropped.items()))
+        text.append(f"; not sent, stamp not after the last: {each}", style="yellow")
+    if r.get("error"):
+        text.append(f"; {r['error']}", style="red")
+    return text
 
 
 def _counters(d: dict[str, Any], cols: list[str]) -> list[str]:

@@ -15,6 +15,7 @@ node (in the systemd unit: `Environment=CYCLONEDDS_URI=…`).
 from __future__ import annotations
 
 import importlib.util
+import os
 from typing import Any
 
 from imud.ros2 import rmw_zenoh as rz
@@ -59,7 +60,9 @@ class DdsOutput:
         try:
             self.participant: Any = DomainParticipant(domain)
         except Exception as e:  # cyclonedds' DDSException: a bad config, no interface
-            raise DdsError(f"Cyclone DDS did not start on domain {domain}: {e}") from None
+            uri = os.environ.get("CYCLONEDDS_URI")
+            fix = f"; check CYCLONEDDS_URI={uri!r}" if uri else ""
+            raise DdsError(f"Cyclone DDS did not start on domain {domain}: {e}{fix}") from None
         self._policies = [
             Policy.Reliability.Reliable(max_blocking_time=0)
             if reliable

@@ -274,6 +274,11 @@ class Ros2Output:
         """Messages put on each topic since it was declared, for status."""
         return {t.name: t.sent for t in self._topics.values()}
 
+    def dropped(self) -> dict[str, int]:
+        """Per device, messages not sent because their stamp did not follow the last one sent
+        (a bus restart or a reload re-sent an instant already published), for status."""
+        return {name: dev.dropped for name, dev in self._devices.items() if dev.dropped}
+
     def close(self) -> None:
         with self._lock:
             for t in self._topics.values():
