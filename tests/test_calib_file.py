@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from imud.calib.file import CalibrationError, load_calibration
 from imud.calib.model import CalibrationModel, apply
@@ -242,3 +244,23 @@ def test_wrong_chip_and_missing_sensors_refused(tmp_path: Path) -> None:
     )
     with pytest.raises(CalibrationError, match="reports no temperature"):
         load_calibration(temp, "toy", Channel.ACCEL | Channel.GYRO)
+
+
+def test_a_covariance_symmetric_but_for_rounding_is_accepted_and_written_symmetric() -> None:
+    from imud.calib.file import FitTable, _fit_table
+
+    rng = np.random.default_rng(3)
+    a = rng.standard_normal((6, 6)) * np.array([1e-3, 1e-5, 1e-7, 1.0, 1e-2, 1e-9])
+    c = a @ a.T
+    # a cross term zero but for rounding on one side (what an element-wise relative test
+    # refused), and one off by rounding: both pass
+    c[5, :5] = c[:5, 5] = 0.0  # parameter 5 independent of the rest (still PSD)
+    c[0, 5] = 1e-14 * math.sqrt(c[0, 0] * c[5, 5])
+    c[2, 4] *= 1 + 1e-9
+    names = tuple(f"p{i}" for i in range(6))
+    FitTable(names=list(names), values=[0.0] * 6, covariance=c.tolist())
+    written = np.array(_fit_table(names, np.zeros(6), c).covariance)
+    assert np.array_equal(written, written.T)
+    c[1, 3] += 1e-3 * math.sqrt(c[1, 1] * c[3, 3])  # a real asymmetry: refused
+    with pytest.raises(ValidationError, match="not symmetric"):
+        FitTable(names=list(names), values=[0.0] * 6, covariance=c.tolist())

@@ -59,7 +59,10 @@ class FitTable(_Strict):
         if len(self.covariance) != p or any(len(r) != p for r in self.covariance):
             raise ValueError(f"covariance must be {p}x{p} (one row and column per name)")
         c = np.asarray(self.covariance, dtype=np.float64)
-        if p and not np.allclose(c, c.T, rtol=1e-6, atol=1e-300):
+        # symmetric to rounding, judged on the correlation scale sqrt(c_ii c_jj): an
+        # element-wise relative test fails on cross terms that are zero but for rounding
+        scale = np.sqrt(np.outer(np.abs(np.diag(c)), np.abs(np.diag(c))))
+        if p and not np.all(np.abs(c - c.T) <= 1e-6 * scale + 1e-300):
             raise ValueError("covariance is not symmetric")
         if p and float(np.linalg.eigvalsh(c).min()) < -1e-9 * max(float(np.abs(c).max()), 1e-300):
             raise ValueError("covariance is not positive semi-definite (a negative variance)")
@@ -364,11 +367,20 @@ def load_or_new(path: Path, chip: str | None, device: str | None) -> Calibration
 
 
 def _fit_table(names: tuple[str, ...], values: Any, cov: Any) -> FitTable:
-    return FitTable(
-        names=list(names),
-        values=[float(v) for v in np.asarray(values).ravel()],
-        covariance=[[float(x) for x in row] for row in np.asarray(cov)],
-    )
+    c = np.asarray(cov, dtype=np.float64)
+    c = 0.5 * (c + c.T)  # an estimator's rounding: the covariance is symmetric by definition
+    try:
+        return FitTable(
+            names=list(names),
+            values=[float(v) for v in np.asarray(values).ravel()],
+            covariance=[[float(x) for x in row] for row in c],
+        )
+    except ValidationError as e:  # a fit whose numbers cannot be a covariance: say so
+        msgs = "; ".join(f"{_where(err['loc'])}: {err['msg']}" for err in e.errors())
+        raise CalibrationError(
+            f"the fit's parameter covariance cannot be written ({msgs}): the data did not "
+            "determine the parameters; capture more, or over a wider span"
+        ) from None
 
 
 def _finite(d: dict[str, float]) -> dict[str, float]:
