@@ -214,3 +214,43 @@ def test_gyro_plot_shows_each_rotation(recording: tuple[Path, float], tmp_path: 
     # the twelve poses' eleven rotations, each with the angle it turned and its gravity miss
     assert "per rotation: poses, duration s, angle deg, gravity miss deg" in r.stdout
     assert " 1 ->  2" in r.stdout and "11 -> 12" in r.stdout
+
+
+def _csv(path: Path, accel: np.ndarray, gyro: np.ndarray, rate: float = 100.0) -> Path:
+    rows = [f"{int(i * 1e9 / rate)}," + ",".join(f"{float(v)!r}" for v in (*a, *g))
+            for i, (a, g) in enumerate(zip(accel, gyro, strict=True))]  # fmt: skip
+    path.write_text("timestamp_ns,ax,ay,az,gx,gy,gz\n" + "\n".join(rows) + "\n")
+    return path
+
+
+@pytest.mark.parametrize(
+    ("case", "code", "says"),
+    [  # the reader's checks are usage errors (2), the procedures' refusals 3
+        ("one sample", 2, "1 sample: at least 2 are needed"),
+        ("dead axis", 3, "accelerometer's y axis reads 0 in every one of its 2000 samples"),
+        ("counts", 2, "median |accel| is 4096 m/s2, not near gravity"),  # 4096 LSB/g as m/s^2
+        ("deg/s", 2, "looks like dps: pass --gyro-units dps"),
+    ],
+)
+def test_garbage_is_refused_naming_the_column_and_the_fix(
+    case: str, code: int, says: str, tmp_path: Path
+) -> None:
+    rng = np.random.default_rng(5)
+    n = 1 if case == "one sample" else 2000
+    accel = np.array([0.0, 0.0, 9.81]) + rng.standard_normal((n, 3)) * 0.02
+    gyro = rng.standard_normal((n, 3)) * 1e-3
+    if case == "dead axis":
+        accel[:, 1] = 0.0
+    if case == "counts":
+        accel *= 4096 / 9.81
+    if case == "deg/s":
+        gyro = gyro + np.degrees([0.0, 0.0, 1.0])  # turning at 57 "rad/s": deg/s as rad/s
+    path = _csv(tmp_path / "garbage.csv", accel, gyro)
+    for kind in ("accel", "gyro"):
+        r = imud("calibrate", kind, "--from", str(path), "--out", str(tmp_path / "c.toml"))
+        msg = r.stdout + r.stderr
+        assert "Traceback" not in msg, msg
+        if case == "deg/s" and kind == "accel":
+            continue  # the accelerometer's columns are fine
+        assert r.returncode == code and says in msg, (kind, msg)
+    assert not (tmp_path / "c.toml").exists()

@@ -391,7 +391,16 @@ def with_affine(cf: CalibrationFile, est: AffineEstimate, source: str) -> Calibr
     """`cf` with one sensor's bias and matrix replaced by an estimate (its temperature
     polynomial, if any, is kept: the estimate was made on temperature-compensated data)."""
     old = cf.sensor(est.sensor)
-    table = SensorTable(
+    try:
+        table = _affine_table(est, source, old)
+    except ValidationError as e:  # a fit no file can hold (singular, mirrored, ill-conditioned)
+        msgs = "; ".join(f"{_where(err['loc'])}: {err['msg']}" for err in e.errors())
+        raise CalibrationError(f"[{est.sensor}] cannot be written: {msgs}") from None
+    return cf.model_copy(update={est.sensor: table, "written": now_iso()})
+
+
+def _affine_table(est: AffineEstimate, source: str, old: SensorTable | None) -> SensorTable:
+    return SensorTable(
         bias=tuple(float(x) for x in est.bias),
         matrix=tuple(tuple(float(x) for x in row) for row in est.matrix),
         procedure=est.procedure,
@@ -406,7 +415,6 @@ def with_affine(cf: CalibrationFile, est: AffineEstimate, source: str) -> Calibr
         temperature=None if old is None else old.temperature,
         noise=None if old is None else old.noise,  # until this procedure measures it anew
     )
-    return cf.model_copy(update={est.sensor: table, "written": now_iso()})
 
 
 def with_noise(cf: CalibrationFile, sensor: str, measured: MeasuredNoise) -> CalibrationFile:

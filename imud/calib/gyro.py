@@ -360,6 +360,13 @@ def _bias_of(bias: AffineEstimate | F64 | None, intervals: list[StillInterval]) 
     if bias is not None:
         return np.asarray(bias, dtype=np.float64).copy(), np.zeros((3, 3))
     # combine the still poses' gyro means (inverse-covariance weighted)
+    for k, iv in enumerate(intervals):
+        if np.linalg.matrix_rank(iv.gyro_cov) < 3:
+            raise CalibrationRefused(
+                f"still pose {k} ({iv.t0_s:.1f}-{iv.t0_s + iv.duration_s:.1f} s): the gyro's "
+                "noise there cannot be measured (an axis reads the same value throughout: a "
+                "dead axis, or a gyro quantised coarser than its noise); check the recording"
+            )
     info = sum(np.linalg.inv(iv.gyro_cov) for iv in intervals)
     rhs = sum(np.linalg.inv(iv.gyro_cov) @ iv.gyro for iv in intervals)
     cov = np.linalg.inv(np.asarray(info))

@@ -26,6 +26,7 @@ from imud.calib.file import (
 )
 from imud.calib.noise import measured_density, shortfall
 from imud.calib.recording import Recording
+from imud.calib.sanity import check_recording
 from imud.calib.still import StillInterval
 from imud.units import STANDARD_GRAVITY
 
@@ -161,6 +162,8 @@ def run_accel(
     """Raises CalibrationRefused when no estimate can be formed at all."""
     from imud.calib.accel import fit_accel
 
+    check_recording(rec, ("accel",))
+
     res = fit_accel(rec, gravity, model, min_s=min_s, significance=significance)
     est = res.estimate
     report = affine_report(est)
@@ -182,6 +185,8 @@ def run_accel(
 
 def run_mag(rec: Recording, field_t: float | None) -> Outcome:
     from imud.calib.mag import fit_mag
+
+    check_recording(rec, ("mag",))
 
     res = fit_mag(rec, field_t)
     est = res.estimate
@@ -211,6 +216,8 @@ def run_temp(
     rec: Recording, sensors: tuple[Literal["accel", "gyro"], ...], max_order: int
 ) -> Outcome:
     from imud.calib.temp import fit_temperature
+
+    check_recording(rec, sensors)
 
     ests = [fit_temperature(rec, s, max_order) for s in sensors]
     accepted = all(e.verdict.accepted for e in ests)
@@ -311,6 +318,8 @@ def run_gyro(
     one, corrects the gravity directions first, so the gyro lands in the calibrated frame.
     With the latitude, Earth's rotation is modelled (imud/calib/gyro.py)."""
     from imud.calib.gyro import fit_gyro_bias
+
+    check_recording(rec, ("accel", "gyro"))  # the accelerometer gives the gravity directions
     from imud.calib.still import check_still, find_still, interval_stats
 
     notes: list[str] = []

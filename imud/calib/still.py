@@ -409,7 +409,8 @@ def find_still(
         if end - start < 2 or (end - start) * period_s < min_s:
             continue
         for a, b in _split_on_mean_change(rec, start, end, act.window):
-            if b - a >= 2 and (b - a) * period_s >= min_s:
+            # a mean's noise needs a few samples to estimate at all (a 1 Hz recording's 2 s)
+            if b - a >= MIN_WINDOW and (b - a) * period_s >= min_s:
                 out.append(interval_stats(rec, a, b, rails))
     return out
 
