@@ -9,11 +9,14 @@ In the six-face model the frame is the jig's: C = A^-1, b = A b0.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 import pytest
 
 from imud.calib.accel import fit_accel, fit_accel_intervals
+from imud.calib.acceptance import Acceptance
 from imud.calib.recording import Recording
 from imud.calib.still import CalibrationRefused, StillInterval, interval_stats
 from tests.test_calib_still import TWELVE, X, Y, Z, session, with_bump
@@ -125,6 +128,37 @@ def test_fewer_than_nine_orientations_says_how_many_more() -> None:
     assert "add 2 more" in msg and "corner" in msg
 
 
+def tilt(v: np.ndarray, deg: float, axis: int) -> np.ndarray:
+    """`v` turned by `deg` about axis `axis`."""
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    i, j = [k for k in range(3) if k != axis]
+    out = v.copy()
+    out[i], out[j] = c * v[i] - s * v[j], s * v[i] + c * v[j]
+    return out
+
+
+def test_every_pose_counts_even_a_few_degrees_from_another() -> None:
+    """A hand-held session: eight orientations, and five more poses 4-7 deg from some of them.
+    Nine distinct orientations are not there, but the thirteen poses determine every parameter
+    (the fit's own sigmas say so)."""
+    eight = FACES + CORNERS[:2]
+    near = [tilt(FACES[k], 4.0 + k * 0.7, (k + 1) % 3) for k in range(5)]
+    res = fit_accel_intervals(pose_means(eight + near, np.random.default_rng(8)), G)
+    assert res.orientations == 8
+    assert res.verdict.accepted, res.verdict.reasons
+    assert np.all(res.estimate.fit.sigma()[:6] < 0.01)
+
+
+def test_poses_that_leave_a_parameter_undetermined_name_it() -> None:
+    """Twelve poses all turned about x (gravity stays in the y-z plane): nothing fixes x's
+    scale; the refusal names C_xx."""
+    ring = [tilt(FACES[4], 30.0 * k, 0) for k in range(12)]
+    with pytest.raises(CalibrationRefused) as err:
+        fit_accel_intervals(pose_means(ring, np.random.default_rng(9)), G)
+    msg = str(err.value)
+    assert "C_xx" in msg and ("undetermined" in msg or "do not pin down" in msg), msg
+
+
 def test_nine_orientations_fit_exactly_and_are_not_accepted_untested() -> None:
     # nine poses, nine parameters: the fit passes through any nine means (a moved pose too),
     # so nothing checks it; one more pose gives the residual test a degree of freedom
@@ -183,12 +217,35 @@ def test_axes_model_names_the_missing_faces() -> None:
         fit_accel_intervals(pose_means(FACES[:5], np.random.default_rng(4)), G, model="axes")
 
 
-def test_axes_model_rejects_poses_off_their_faces() -> None:
+def tilted_faces(deg: float) -> list[np.ndarray]:
     tilted = [f.copy() for f in FACES]
-    tilted[2] = np.array([np.sin(np.radians(2)), 0.0, np.cos(np.radians(2))])  # 2 deg off +z
-    res = fit_accel_intervals(pose_means(tilted, np.random.default_rng(5)), G, model="axes")
+    tilted[2] = np.array([np.sin(np.radians(deg)), 0.0, np.cos(np.radians(deg))])  # off +z
+    return tilted
+
+
+def test_axes_model_strict_rejects_poses_off_their_faces() -> None:
+    ivs = pose_means(tilted_faces(2.0), np.random.default_rng(5))
+    res = fit_accel_intervals(ivs, G, model="axes", acceptance=Acceptance(strict=True))
     assert not res.verdict.accepted
+    assert "--strict" in res.verdict.reasons[0]
     assert "pose 3" in res.verdict.reasons[0] and "default model" in res.verdict.reasons[0]
+
+
+def test_axes_model_takes_a_pose_a_little_off_and_refuses_one_far_off() -> None:
+    """By default the pose error is a model error within a tolerance (1 deg, 17.5 mg): the same
+    2 deg off pose passes with its floor reported, 8 deg does not."""
+    little = fit_accel_intervals(
+        pose_means(tilted_faces(2.0), np.random.default_rng(5)), G, model="axes"
+    )
+    floor = little.estimate.fit.residuals["model_error"]
+    assert little.verdict.accepted, little.verdict.reasons
+    assert 0 < floor < 17.5e-3 * 9.80665
+    assert any("model error" in r and "within the tolerance of 17.5 mg" in r
+               for r in little.verdict.reasons)  # fmt: skip
+    far = fit_accel_intervals(pose_means(tilted_faces(8.0), np.random.default_rng(5)), G, "axes")
+    assert not far.verdict.accepted
+    assert "more than the tolerance of 17.5 mg (--tolerance-mg)" in far.verdict.reasons[0]
+    assert "pose 3" in far.verdict.reasons[0]
 
 
 def test_a_bad_pose_fails_the_chi2_test_and_is_named() -> None:
@@ -198,10 +255,32 @@ def test_a_bad_pose_fails_the_chi2_test_and_is_named() -> None:
         bad.start, bad.end, bad.t0_s, bad.duration_s, bad.accel * (1 + 30 * SIGMA_M / G),
         bad.gyro, bad.accel_cov, bad.gyro_cov,
     )  # fmt: skip
-    res = fit_accel_intervals(ivs, G)
+    res = fit_accel_intervals(ivs, G, acceptance=Acceptance(strict=True))
     assert not res.verdict.accepted
     assert res.estimate.fit.residuals["p_value"] < 0.01
     assert "worst pose 8 (210.0-240.0 s)" in res.verdict.reasons[0]
+    # by default: a model error of that size is reported and, beyond the tolerance, refused
+    loose = fit_accel_intervals(ivs, G)
+    floor = loose.estimate.fit.residuals["model_error"]
+    assert floor > 0
+    tight = fit_accel_intervals(ivs, G, acceptance=Acceptance(tolerance=floor / 2))
+    assert not tight.verdict.accepted
+    assert "worst pose 8 (210.0-240.0 s)" in tight.verdict.reasons[0]
+    assert "model error" in tight.verdict.reasons[0]
+
+
+def test_the_model_error_floor_is_what_was_added() -> None:
+    """Every pose's norm moved by an independent error of known size s: the floor finds s."""
+    rng = np.random.default_rng(11)
+    s = 30 * SIGMA_M
+    ivs = []
+    for iv in pose_means(POSES * 4, np.random.default_rng(12)):
+        scale = 1 + s * rng.standard_normal() / G
+        ivs.append(StillInterval(iv.start, iv.end, iv.t0_s, iv.duration_s, iv.accel * scale,
+                                 iv.gyro, iv.accel_cov, iv.gyro_cov))  # fmt: skip
+    floor = fit_accel_intervals(ivs, G).estimate.fit.residuals["model_error"]
+    dof = len(ivs) - 9
+    assert floor == pytest.approx(s, rel=3 / math.sqrt(2 * dof))  # ~3 sigma of a variance
 
 
 def test_temperature_within_a_pose_warns_across_the_capture_rejects() -> None:

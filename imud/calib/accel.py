@@ -38,12 +38,20 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import partial
 from itertools import product
 from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
 
+from imud.calib.acceptance import (
+    ACCEL_AXES_TOLERANCE,
+    ACCEL_FULL_TOLERANCE,
+    MG,
+    Acceptance,
+    model_error_floor,
+)
 from imud.calib.estimate import AffineEstimate, Fit, Verdict
 from imud.calib.recording import Recording
 from imud.calib.stats import chi2_sf
@@ -182,6 +190,7 @@ def fit_accel(
     intervals: list[StillInterval] | None = None,
     min_s: float = 2.0,
     significance: float = 0.01,
+    acceptance: Acceptance | None = None,
 ) -> AccelResult:
     """Calibrate the accelerometer from the still poses of a recording (see module docstring).
 
@@ -217,7 +226,7 @@ def fit_accel(
             f"(still {still_s:.1f} s of {rec.n / rec.rate_hz:.1f} s in total): the sensor moved "
             "throughout; hold each pose still for a few seconds"
         )
-    return fit_accel_intervals(intervals, gravity, model, dropped, significance)
+    return fit_accel_intervals(intervals, gravity, model, dropped, significance, acceptance)
 
 
 def fit_accel_intervals(
@@ -226,8 +235,12 @@ def fit_accel_intervals(
     model: Model = "full",
     dropped: list[str] | None = None,
     significance: float = 0.01,
+    acceptance: Acceptance | None = None,
 ) -> AccelResult:
-    """The fit itself, from pose means alone (fit_accel adds detection and motion checks)."""
+    """The fit itself, from pose means alone (fit_accel adds detection and motion checks).
+    `acceptance` None: the model-error floor against the default tolerance, `significance`
+    for the strict test's threshold."""
+    acceptance = acceptance or Acceptance(significance=significance)
     _check_gravity(gravity)
     notes = list(dropped or [])
     used = []
@@ -248,8 +261,8 @@ def fit_accel_intervals(
     n_orient = dirs.shape[0]
     seed = seed_comparison(used, gravity)
     if model == "full":
-        if n_orient < FULL_PARAMS:
-            need = FULL_PARAMS - n_orient
+        if len(used) < FULL_PARAMS:
+            need = FULL_PARAMS - n_orient  # repeats of an orientation add little
             tips = suggest_poses(dirs, max(need, 3))
             extra = f" ({'; '.join(notes)})" if notes else ""
             raise CalibrationRefused(
@@ -257,7 +270,17 @@ def fit_accel_intervals(
                 f"the 9-parameter fit needs {FULL_PARAMS}: add {need} more, tilted ones help most "
                 f"(e.g. {', '.join(tips)})"
             )
-        est, poses = _fit_full(used, gravity)
+        est, poses = _fit_full(used, gravity, acceptance.significance)
+        # every pose counts: what they determine is read from the fit's own uncertainty, not
+        # from a count of well-separated orientations (hand-held sessions hold many poses a
+        # few degrees apart)
+        weak = _weak_parameters(est)
+        if weak:
+            raise CalibrationRefused(
+                f"{len(used)} still poses in {n_orient} distinct orientations leave "
+                f"{', '.join(weak)} undetermined: add poses, tilted ones help most "
+                f"(e.g. {', '.join(suggest_poses(dirs, 3))})"
+            )
     elif model == "axes":
         faces = {face_of(m) for m in means}
         missing = [FACES[k] for k in range(6) if k not in faces]
@@ -267,12 +290,12 @@ def fit_accel_intervals(
                 f"{', '.join(f + ' up' for f in missing)}; capture those poses, or use the default "
                 "model, which takes any orientations"
             )
-        est, poses = _fit_axes(used, gravity)
+        est, poses = _fit_axes(used, gravity, acceptance.significance)
     else:
         raise ValueError(f"unknown accel model {model!r}: use 'full' or 'axes'")
     for p, lab in zip(poses, labels, strict=True):
         p["orientation"] = lab
-    reasons, ok = _verdict(used, poses, est, model, significance)
+    reasons, ok = _verdict(used, poses, est, model, acceptance)
     details: dict[str, Any] = {
         **est.details,
         "poses": poses,
@@ -315,8 +338,11 @@ def _full_unpack(p: F64) -> tuple[F64, F64]:
     return c, p[6:9].copy()
 
 
-def _full_model(p: F64, means: F64, covs: F64, g: float) -> tuple[F64, F64, F64]:
-    """Residuals ||C(m - b)|| - g, their Jacobian (n, 9), and their sigmas."""
+def _full_model(
+    p: F64, means: F64, covs: F64, g: float, floor2: float = 0.0
+) -> tuple[F64, F64, F64]:
+    """Residuals ||C(m - b)|| - g, their Jacobian (n, 9), and their sigmas (the poses' noise
+    and a model-error variance `floor2`)."""
     c, b = _full_unpack(p)
     d = means - b
     v = d @ c.T
@@ -328,8 +354,13 @@ def _full_model(p: F64, means: F64, covs: F64, g: float) -> tuple[F64, F64, F64]
         jac[:, k] = u[:, i] * d[:, j]
     uc = u @ c  # u^T C per pose
     jac[:, 6:9] = -uc
-    sig = np.sqrt(np.einsum("ni,nij,nj->n", uc, covs, uc))
+    sig = np.sqrt(np.einsum("ni,nij,nj->n", uc, covs, uc) + floor2)
     return r, jac, sig
+
+
+def _norm_chi2(r2: F64, var: F64, s2: float) -> float:
+    """The residuals' chi-squared with a model-error variance s2 added to each pose's."""
+    return float(np.sum(r2 / (var + s2)))
 
 
 def _diagonal_start(means: F64, g: float) -> F64:
@@ -350,11 +381,13 @@ def _diagonal_start(means: F64, g: float) -> F64:
     return np.array([s[0], 0.0, 0.0, s[1], 0.0, s[2], *b])
 
 
-def _gauss_newton(p: F64, means: F64, covs: F64, g: float, max_iter: int = 100) -> tuple[F64, int]:
+def _gauss_newton(
+    p: F64, means: F64, covs: F64, g: float, max_iter: int = 100, floor2: float = 0.0
+) -> tuple[F64, int]:
     """Levenberg-Marquardt on the 9 parameters; weights re-evaluated at each accepted step."""
     lam = 1e-3
     for it in range(max_iter):
-        r, jac, sig = _full_model(p, means, covs, g)
+        r, jac, sig = _full_model(p, means, covs, g, floor2)
         w = 1.0 / sig**2
         cost = float(np.sum(w * r * r))
         a = jac.T @ (jac * w[:, None])
@@ -362,7 +395,7 @@ def _gauss_newton(p: F64, means: F64, covs: F64, g: float, max_iter: int = 100) 
         while True:
             step = np.linalg.solve(a + lam * np.diag(np.diag(a)), -grad)
             trial = p + step
-            r2, _, _ = _full_model(trial, means, covs, g)
+            r2, _, _ = _full_model(trial, means, covs, g, floor2)
             cost2 = float(np.sum(w * r2 * r2))
             if cost2 <= cost or lam > 1e12:
                 break
@@ -378,30 +411,52 @@ def _gauss_newton(p: F64, means: F64, covs: F64, g: float, max_iter: int = 100) 
     return p, max_iter
 
 
-def _fit_full(used: list[StillInterval], g: float) -> tuple[_Solved, list[dict[str, Any]]]:
+def _fit_full(
+    used: list[StillInterval], g: float, significance: float
+) -> tuple[_Solved, list[dict[str, Any]]]:
     means = np.array([iv.accel for iv in used])
     covs = np.array([iv.accel_cov for iv in used])
     p, iters = _gauss_newton(_diagonal_start(means, g), means, covs, g)
     r, jac, sig = _full_model(p, means, covs, g)
     info = jac.T @ (jac / sig[:, None] ** 2)
-    ev = np.linalg.eigvalsh(info)
+    ev, vec = np.linalg.eigh(info)
     if ev[0] <= 1e-12 * ev[-1]:
+        # the parameters the data cannot tell apart: the weakest direction's main components
+        weakest = np.abs(vec[:, 0])
+        names = [FULL_NAMES[k] for k in np.argsort(weakest)[::-1] if weakest[k] > 0.3]
         raise CalibrationRefused(
-            "the poses do not pin down all nine parameters (their gravity directions lie on a "
-            "plane or a cone): add poses resting on edges and corners, e.g. "
-            + ", ".join(suggest_poses(orientation_labels(means)[1], 3))
+            f"the poses do not pin down all nine parameters ({', '.join(names)} undetermined: "
+            "their gravity directions lie on a plane or a cone): add poses resting on edges "
+            "and corners, e.g. " + ", ".join(suggest_poses(orientation_labels(means)[1], 3))
         )
-    cov = np.linalg.inv(info)
-    cov = 0.5 * (cov + cov.T)
-    chi2 = float(np.sum((r / sig) ** 2))
     dof = len(used) - FULL_PARAMS
+    floor = 0.0
+    for _ in range(20):
+        # a model error weighs every pose alike: the fit is redone with it in the weights (a
+        # random-effects estimate), so poses whose noise is tiny do not outweigh the others
+        r2, v = r * r, sig * sig
+        new = model_error_floor(
+            partial(_norm_chi2, r2, v), dof, float(np.sqrt(np.mean(r2))), significance
+        )
+        if abs(new - floor) <= 1e-3 * max(new, 1e-300):
+            break
+        floor = new
+        p, iters = _gauss_newton(p, means, covs, g, floor2=floor * floor)
+        r, jac, sig = _full_model(p, means, covs, g)
+    chi2 = float(np.sum((r / sig) ** 2))
+    rms = float(np.sqrt(np.mean(r * r)))
+    # the parameters' covariance with the model error counted as noise of every pose
+    var = sig * sig + floor * floor
+    cov = np.linalg.inv(jac.T @ (jac / var[:, None]))
+    cov = 0.5 * (cov + cov.T)
     c, b = _full_unpack(p)
     residuals = {
-        "rms": float(np.sqrt(np.mean(r * r))),
+        "rms": rms,
         "chi2": chi2,
         "dof": float(dof),
         "p_value": chi2_sf(chi2, dof) if dof > 0 else 1.0,
         "noise": float(np.sqrt(np.mean(sig * sig))),
+        "model_error": floor,
     }
     poses = [
         {
@@ -418,7 +473,9 @@ def _fit_full(used: list[StillInterval], g: float) -> tuple[_Solved, list[dict[s
     return _Solved(FULL_NAMES, p, cov, c, b, residuals, details), poses
 
 
-def _fit_axes(used: list[StillInterval], g: float) -> tuple[_Solved, list[dict[str, Any]]]:
+def _fit_axes(
+    used: list[StillInterval], g: float, significance: float
+) -> tuple[_Solved, list[dict[str, Any]]]:
     means = np.array([iv.accel for iv in used])
     covs = np.array([iv.accel_cov for iv in used])
     n = len(used)
@@ -434,13 +491,21 @@ def _fit_axes(used: list[StillInterval], g: float) -> tuple[_Solved, list[dict[s
     winv = np.linalg.inv(covs)
     normal = np.einsum("nji,njk,nkl->il", x, winv, x)
     rhs = np.einsum("nji,njk,nk->i", x, winv, means)
-    cov_theta = np.linalg.inv(normal)
-    theta = cov_theta @ rhs
+    theta = np.linalg.solve(normal, rhs)
     a = theta[:9].reshape(3, 3)
     b = theta[9:]
     e = means - np.einsum("nij,j->ni", x, theta)
     chi2 = float(np.einsum("ni,nij,nj->", e, winv, e))
     dof = 3 * n - 12
+
+    def chi2_at(s2: float) -> float:
+        w = np.linalg.inv(covs + s2 * np.eye(3))
+        return float(np.einsum("ni,nij,nj->", e, w, e))
+
+    floor = model_error_floor(chi2_at, dof, float(np.sqrt(np.mean(e * e))), significance)
+    # the parameters' covariance with the model error (e.g. poses off their faces) counted in
+    winf = np.linalg.inv(covs + floor * floor * np.eye(3))
+    cov_theta = np.linalg.inv(np.einsum("nji,njk,nkl->il", x, winf, x))
     c: F64 = np.linalg.inv(a)
     # d vec(C) = -(C kron C^T) d vec(A) for row-major vec
     jac = np.zeros((12, 12))
@@ -461,6 +526,7 @@ def _fit_axes(used: list[StillInterval], g: float) -> tuple[_Solved, list[dict[s
         "dof": float(dof),
         "p_value": chi2_sf(chi2, dof) if dof > 0 else 1.0,
         "noise": float(np.sqrt(np.mean(np.einsum("nii->ni", covs)))),
+        "model_error": floor,
     }
     poses = [
         {
@@ -485,13 +551,18 @@ def _verdict(
     poses: list[dict[str, Any]],
     est: _Solved,
     model: Model,
-    significance: float = 0.01,
+    acceptance: Acceptance,
 ) -> tuple[list[str], bool]:
-    """significance: the chance of refusing a right model with right noise (the chi-squared
-    test's p threshold); 0.01 by default."""
+    """Strict: the chi-squared test at `acceptance.significance` (the chance of refusing a right
+    model with right noise). Else the model-error floor against the tolerance, and the
+    calibration must improve the poses' |a| - g over the raw readings (imud/calib/acceptance.py)."""
     reasons: list[str] = []
     ok = True
     res = est.residuals
+    floor = res["model_error"]
+    tolerance = acceptance.tolerance_for(
+        ACCEL_FULL_TOLERANCE if model == "full" else ACCEL_AXES_TOLERANCE
+    )
     if res["dof"] <= 0:
         # an exact fit passes any data through, a pose that moved included, and its sigmas
         # may be huge (nine poses near a cone): nothing says it is right
@@ -501,26 +572,34 @@ def _verdict(
             "residuals cannot be tested; add at least one more pose (three or more make the "
             "test worth having)"
         )
-    elif res["p_value"] < significance:
+    elif acceptance.strict and res["p_value"] < acceptance.significance:
         ok = False
-        if model == "axes":
-            worst = max(range(len(poses)), key=lambda k: poses[k]["off_face_deg"])
+        reasons.append(
+            f"the residuals are {math.sqrt(res['chi2'] / res['dof']):.1f} times the poses' "
+            f"noise (chi2 {res['chi2']:.1f}, dof {res['dof']:.0f}, p {res['p_value']:.2g}), "
+            f"--strict: {_worst(used, poses, model)}"
+        )
+    elif not acceptance.strict and floor > tolerance:
+        ok = False
+        reasons.append(
+            f"the residuals hold a model error of {floor / MG:.2f} mg beyond the poses' noise "
+            f"({res['noise'] / MG:.3f} mg), more than the tolerance of {tolerance / MG:g} mg "
+            f"(--tolerance-mg): {_worst(used, poses, model)}"
+        )
+    elif not acceptance.strict and floor > 0:
+        reasons.append(
+            f"model error {floor / MG:.2f} mg beyond the poses' noise ({res['noise'] / MG:.3f} "
+            f"mg), within the tolerance of {tolerance / MG:g} mg; the parameters' uncertainty "
+            "includes it"
+        )
+    if ok and not acceptance.strict and res["dof"] > 0:
+        raw, fixed = _norm_errors(poses, est)
+        if fixed >= raw:
+            ok = False
             reasons.append(
-                f"the residuals are {math.sqrt(res['chi2'] / res['dof']):.1f} times the poses' "
-                f"noise (chi2 {res['chi2']:.1f}, dof {res['dof']:.0f}, p {res['p_value']:.2g}): "
-                f"the poses are not the six faces within the noise (worst: "
-                f"{_pose_name(worst, used[worst])}, {poses[worst]['off_face_deg']:.2f} deg off "
-                "its face); use the default model, which does not assume aligned poses"
-            )
-        else:
-            z = [abs(p["residual"]) / p["sigma"] for p in poses]
-            worst = int(np.argmax(z))
-            reasons.append(
-                f"the residuals are {math.sqrt(res['chi2'] / res['dof']):.1f} times the poses' "
-                f"noise (chi2 {res['chi2']:.1f}, dof {res['dof']:.0f}, p {res['p_value']:.2g}); "
-                f"worst {_pose_name(worst, used[worst])}: {poses[worst]['residual']:.2e} m/s^2, "
-                f"{z[worst]:.1f} sigma: a pose moved, the temperature drifted, the gravity value "
-                "is wrong or the sensor is not linear; capture again"
+                f"the calibration does not improve the still poses' |a| - g (raw "
+                f"{raw / MG:.2f} mg RMS, calibrated {fixed / MG:.2f} mg): the poses do not "
+                "determine it; capture more orientations"
             )
     warm = [
         f"{_pose_name(k, iv)} {iv.temp_change_c:+.2f} degC"
@@ -542,3 +621,49 @@ def _verdict(
             "again, or calibrate temperature first"
         )
     return reasons, ok
+
+
+# a parameter whose sigma exceeds these is not determined by the poses: a scale or misalignment
+# term known to worse than 1 % (an uncalibrated MEMS part's own error), a bias to worse than
+# 50 mg (beyond any MEMS part's zero-g offset)
+WEAK_MATRIX_SIGMA = 0.01
+WEAK_BIAS_SIGMA = 50 * MG
+
+
+def _weak_parameters(est: _Solved) -> list[str]:
+    """Each parameter the fit leaves undetermined, named with its sigma."""
+    sig = np.sqrt(np.clip(np.diag(est.covariance), 0.0, None))
+    out = []
+    for name, s in zip(est.names, sig, strict=True):
+        limit = WEAK_BIAS_SIGMA if name.startswith("b_") else WEAK_MATRIX_SIGMA
+        if not s <= limit:
+            unit = f"{s / MG:.3g} mg" if name.startswith("b_") else f"{s:.2g}"
+            out.append(f"{name} (sigma {unit})")
+    return out
+
+
+def _worst(used: list[StillInterval], poses: list[dict[str, Any]], model: Model) -> str:
+    """The pose that fits worst, and what usually makes it so."""
+    if model == "axes":
+        worst = max(range(len(poses)), key=lambda k: poses[k]["off_face_deg"])
+        return (
+            f"the poses are not the six faces (worst: {_pose_name(worst, used[worst])}, "
+            f"{poses[worst]['off_face_deg']:.2f} deg off its face); use the default model, "
+            "which does not assume aligned poses"
+        )
+    z = [abs(p["residual"]) / p["sigma"] for p in poses]
+    worst = int(np.argmax(z))
+    return (
+        f"worst {_pose_name(worst, used[worst])}: {poses[worst]['residual']:.2e} m/s^2, "
+        f"{z[worst]:.1f} sigma: a pose moved, the temperature drifted, the gravity value is "
+        "wrong or the sensor is not linear; capture again"
+    )
+
+
+def _norm_errors(poses: list[dict[str, Any]], est: _Solved) -> tuple[float, float]:
+    """RMS over the poses of |a| - g, raw and calibrated (g: the fit's own, from its poses)."""
+    means = np.array([p["mean"] for p in poses])
+    fixed = np.linalg.norm((means - est.bias) @ est.matrix.T, axis=1)
+    g = float(np.median(fixed))
+    raw = np.linalg.norm(means, axis=1)
+    return float(np.sqrt(np.mean((raw - g) ** 2))), float(np.sqrt(np.mean((fixed - g) ** 2)))

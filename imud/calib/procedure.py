@@ -16,6 +16,7 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
+from imud.calib.acceptance import Acceptance
 from imud.calib.estimate import AffineEstimate, Fit, TempEstimate
 from imud.calib.file import (
     CalibrationFile,
@@ -158,13 +159,16 @@ def run_accel(
     model: Literal["full", "axes"],
     min_s: float = 2.0,
     significance: float = 0.01,
+    acceptance: Acceptance | None = None,
 ) -> Outcome:
     """Raises CalibrationRefused when no estimate can be formed at all."""
     from imud.calib.accel import fit_accel
 
     check_recording(rec, ("accel",))
 
-    res = fit_accel(rec, gravity, model, min_s=min_s, significance=significance)
+    res = fit_accel(
+        rec, gravity, model, min_s=min_s, significance=significance, acceptance=acceptance
+    )
     est = res.estimate
     report = affine_report(est)
     report["orientations"] = res.orientations

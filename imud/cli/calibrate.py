@@ -262,7 +262,12 @@ class Job:
             report["gravity_source"] = gravity_note
         written = None
         if outcome.accepted and not self.o["dry_run"]:
-            cf = outcome.update(self.existing(), source)
+            from imud.calib.file import CalibrationError
+
+            try:
+                cf = outcome.update(self.existing(), source)
+            except CalibrationError as e:  # a fit no file can hold: said, nothing written
+                _fail(f"not written: {e}", EXIT_REFUSED, self.as_json)
             assert self.out is not None
             write_calibration(self.out, cf)
             written = str(self.out)
@@ -352,6 +357,18 @@ def _gravity(job: Job, gravity: float | None, lat: float | None, h: float | None
     help="live: distinct orientations to capture before fitting",
 )
 @_significance
+@click.option(
+    "--strict",
+    is_flag=True,
+    help="accept only residuals that are the poses' noise alone (a lab set-up); by default a "
+    "model error within --tolerance-mg is accepted and reported",
+)
+@click.option(
+    "--tolerance-mg",
+    type=click.FloatRange(min=0.0, max=1000.0),
+    help="the model error accepted beyond the noise, mg (default 5 for --model full, 17.5, "
+    "about 1 deg of pose error, for axes)",
+)
 def accel(
     gravity: float | None,
     latitude: float | None,
@@ -360,9 +377,14 @@ def accel(
     min_still: float,
     poses: int,
     significance: float,
+    strict: bool,
+    tolerance_mg: float | None,
     **opts: Any,
 ) -> None:
-    """Accelerometer bias, scale and misalignment from still poses against local gravity."""
+    """Accelerometer bias, scale and misalignment from still poses against local gravity.
+    The residuals are judged as the poses' noise plus a model-error floor (poses a little off,
+    drift), reported in mg and accepted within --tolerance-mg; --strict for the noise alone."""
+    from imud.calib.acceptance import MG, Acceptance
     from imud.calib.procedure import run_accel
     from imud.calib.still import CalibrationRefused
 
@@ -385,7 +407,9 @@ def accel(
     rec = job.recording(lambda j: capture_poses(j, poses, min_still, missing))
     rec, notes = _prepared(job, rec)
     try:
-        outcome = run_accel(rec, g, model, min_s=min_still, significance=significance)  # type: ignore[arg-type]
+        tolerance = None if tolerance_mg is None else tolerance_mg * MG
+        acceptance = Acceptance(strict, significance, tolerance)
+        outcome = run_accel(rec, g, model, min_s=min_still, acceptance=acceptance)  # type: ignore[arg-type]
     except CalibrationRefused as e:
         _refused(e, job.as_json)
     job.finish(outcome, note, notes, rec.source)
