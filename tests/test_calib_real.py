@@ -59,7 +59,11 @@ def test_a_real_recording_is_accepted_with_its_model_error_and_refused_by_strict
 ) -> None:
     rec, _ = xsens
     out = run_accel(rec, G, "full")
-    floor = out.report["residuals"]["model_error"]
+    res = out.report["residuals"]
+    floor = res["model_error"]
+    print(f"accel-9 on {rec.source}: model error {floor / MG:.3f} mg, noise "
+          f"{res['noise'] / MG:.3f} mg, rms {res['rms'] / MG:.3f} mg, "
+          f"chi2 {res['chi2']:.0f}/{res['dof']:.0f}")  # fmt: skip
     assert out.accepted, out.reasons
     assert 0 < floor < 1 * MG  # a fraction of a milli-g beyond the noise
     assert any("model error" in r for r in out.reasons)
