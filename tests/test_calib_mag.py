@@ -21,6 +21,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from imud.calib.acceptance import Acceptance
 from imud.calib.mag import difference_noise, fit_mag
 from imud.calib.recording import Recording
 
@@ -240,10 +241,18 @@ def test_a_hard_iron_that_moves_mid_recording_fails_the_chi2_test() -> None:
     mag = rec.mag.copy()
     mag[1000:] += np.array([1.5e-6, 0.0, 0.0])
     moved = Recording(rec.t_ns, rec.accel, rec.gyro, mag=mag)
-    est = fit_mag(moved).estimate
+    est = fit_mag(moved, acceptance=Acceptance(strict=True, significance=0.01)).estimate
     assert not est.verdict.accepted
     assert any("residuals exceed the measured noise" in r for r in est.verdict.reasons)
     assert est.fit.residuals["p_value"] < 0.01
+    # by default the jump is a model error: about half the step's size in the norm residuals,
+    # reported, and refused once beyond the tolerance asked for
+    loose = fit_mag(moved).estimate
+    floor = loose.fit.residuals["model_error"]
+    assert 0.2e-6 < floor < 1.5e-6
+    tight = fit_mag(moved, acceptance=Acceptance(tolerance=floor / 2)).estimate
+    assert not tight.verdict.accepted
+    assert any("(--tolerance-ut)" in r for r in tight.verdict.reasons)
 
 
 def test_difference_noise_ignores_steady_rotation() -> None:

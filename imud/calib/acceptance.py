@@ -32,6 +32,7 @@ from imud.calib.stats import chi2_sf
 MG = 9.80665e-3
 ACCEL_FULL_TOLERANCE = 5.0 * MG
 ACCEL_AXES_TOLERANCE = 17.5 * MG  # ~1 deg of pose error at 1 g
+MAG_TOLERANCE_FRACTION = 0.03  # of the field: about 1.7 deg of heading error
 
 
 @dataclass(frozen=True)
@@ -52,7 +53,7 @@ class Acceptance:
 
 
 def model_error_floor(
-    chi2_at: Callable[[float], float], dof: int, scale: float, significance: float = 0.01
+    chi2_at: Callable[[float], float], dof: float, scale: float, significance: float = 0.01
 ) -> float:
     """s such that chi2_at(s^2) = dof; 0 when the residuals are consistent with the noise alone
     (chi2_at(0) passes the chi-squared test at `significance`), so data a right model fits keep

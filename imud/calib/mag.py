@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from imud.calib.acceptance import MAG_TOLERANCE_FRACTION, Acceptance, model_error_floor
 from imud.calib.estimate import F64, AffineEstimate, Fit, Verdict
 from imud.calib.recording import Recording
 from imud.calib.stats import chi2_sf
@@ -390,6 +391,31 @@ def _residual_stats(
     )
 
 
+def _floor(
+    m: F64,
+    bias: F64,
+    matrix: F64,
+    field: float,
+    sigma: F64,
+    residuals: dict[str, float],
+    c: float,
+    significance: float,
+) -> float:
+    """The model-error floor (imud/calib/acceptance.py) of the norm residuals, tesla; the
+    chi-squared widened by Satterthwaite's c as the noise test is."""
+    corrected = (m - bias) @ matrix.T
+    norm = np.linalg.norm(corrected, axis=1)
+    ua = (corrected / norm[:, None]) @ matrix
+    r2 = (norm - field) ** 2
+    var = _noise_of_residuals(ua, sigma) ** 2
+    return model_error_floor(
+        lambda s2: float(np.sum(r2 / (var + s2))) / c,
+        residuals["dof"] / c,
+        residuals["rms"],
+        significance,
+    )
+
+
 def _report_jacobian(a: F64, field_t: float | None) -> tuple[F64, float]:
     """d(bias, matrix6, field)/d(b, A6) and the field: matrix = field * A, with
     field = field_t, or det(A)^(-1/3) so that det(matrix) = 1."""
@@ -406,7 +432,9 @@ def _report_jacobian(a: F64, field_t: float | None) -> tuple[F64, float]:
     return g, field
 
 
-def fit_mag(rec: Recording, field_t: float | None = None) -> MagResult:
+def fit_mag(
+    rec: Recording, field_t: float | None = None, acceptance: Acceptance | None = None
+) -> MagResult:
     """Hard iron (bias, tesla) and symmetric soft iron (matrix) from a recording rotated
     through many directions.
 
@@ -468,6 +496,10 @@ def fit_mag(rec: Recording, field_t: float | None = None) -> MagResult:
     covariance = jac @ cov_scaled @ jac.T
     matrix = field * a
     residuals, u, c = _residual_stats(m, bias, matrix, field, sigma, noise_dof, 9)
+    acceptance = acceptance or Acceptance(significance=P_REJECT)
+    floor = _floor(m, bias, matrix, field, sigma, residuals, c, acceptance.significance)
+    residuals["model_error"] = floor
+    tolerance = acceptance.tolerance_for(MAG_TOLERANCE_FRACTION * field)
     cover = coverage(u)
 
     reasons: list[str] = []
@@ -480,13 +512,27 @@ def fit_mag(rec: Recording, field_t: float | None = None) -> MagResult:
             f"the field along {', '.join(cover.missing)}; rotate the device until those "
             "directions are filled"
         )
-    if residuals["p_value"] < P_REJECT:
+    beyond = (
+        f"(chi2/dof = {residuals['chi2'] / residuals['dof']:.2f}, p = {residuals['p_value']:.1e})"
+    )
+    advice = (
+        "the field is not an affine image of a sphere here; move away from iron and magnets, "
+        "keep motors and currents steady, and rotate slowly"
+    )
+    if acceptance.strict and residuals["p_value"] < acceptance.significance:
+        accepted = False
+        reasons.append(f"residuals exceed the measured noise {beyond}, --strict: {advice}")
+    elif not acceptance.strict and floor > tolerance:
         accepted = False
         reasons.append(
-            f"residuals exceed the measured noise (chi2/dof = "
-            f"{residuals['chi2'] / residuals['dof']:.2f}, p = {residuals['p_value']:.1e}): "
-            "the field is not an affine image of a sphere here; move away from iron and "
-            "magnets, keep motors and currents steady, and rotate slowly"
+            f"the residuals hold a model error of {floor * 1e6:.3g} uT beyond the noise "
+            f"({residuals['noise'] * 1e6:.3g} uT) {beyond}, more than the tolerance of "
+            f"{tolerance * 1e6:.3g} uT (--tolerance-ut): {advice}"
+        )
+    elif not acceptance.strict and floor > 0:
+        reasons.append(
+            f"model error {floor * 1e6:.3g} uT beyond the noise ({residuals['noise'] * 1e6:.3g}"
+            f" uT), within the tolerance of {tolerance * 1e6:.3g} uT"
         )
     lower = 1.0 - p_value(residuals["chi2"], residuals["dof"], c)
     if lower < P_REJECT:

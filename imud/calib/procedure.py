@@ -187,12 +187,12 @@ def run_accel(
     )
 
 
-def run_mag(rec: Recording, field_t: float | None) -> Outcome:
+def run_mag(rec: Recording, field_t: float | None, acceptance: Acceptance | None = None) -> Outcome:
     from imud.calib.mag import fit_mag
 
     check_recording(rec, ("mag",))
 
-    res = fit_mag(rec, field_t)
+    res = fit_mag(rec, field_t, acceptance)
     est = res.estimate
     report = affine_report(est)
     report["coverage"] = {

@@ -490,7 +490,19 @@ def temp(sensor: str, max_order: int, **opts: Any) -> None:
     type=click.FloatRange(min=1, max=1000),
     help="the local field magnitude (e.g. from a geomagnetic model), microtesla",
 )
-def mag(field_ut: float | None, **opts: Any) -> None:
+@click.option(
+    "--strict",
+    is_flag=True,
+    help="accept only residuals that are the noise alone; by default a model error within "
+    "--tolerance-ut is accepted and reported",
+)
+@click.option(
+    "--tolerance-ut",
+    type=click.FloatRange(min=0.0, max=1000.0),
+    help="the model error accepted beyond the noise, uT (default 3 % of the fitted field, "
+    "about 1.7 deg of heading)",
+)
+def mag(field_ut: float | None, strict: bool, tolerance_ut: float | None, **opts: Any) -> None:
     """Magnetometer hard and soft iron (full ellipsoid) from a recording rotated through many
     directions."""
     from imud.calib.procedure import run_mag
@@ -504,7 +516,11 @@ def mag(field_ut: float | None, **opts: Any) -> None:
         _fail(f"{rec.source}: no magnetometer columns (mx, my, mz)", EXIT_USAGE, job.as_json)
     rec, notes = _prepared(job, rec)
     try:
-        outcome = run_mag(rec, None if field_ut is None else field_ut * 1e-6)
+        from imud.calib.acceptance import Acceptance
+
+        tolerance = None if tolerance_ut is None else tolerance_ut * 1e-6
+        acceptance = Acceptance(strict, 0.01, tolerance)
+        outcome = run_mag(rec, None if field_ut is None else field_ut * 1e-6, acceptance)
     except CalibrationRefused as e:
         _refused(e, job.as_json)
     job.finish(outcome, None, notes, rec.source)
