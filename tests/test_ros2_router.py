@@ -42,7 +42,11 @@ while len(got) < 50 and time.monotonic() < end:
         continue
     got.append(len(s.attachment.to_bytes()) if s.attachment is not None else 0)
 tokens, end = [], time.monotonic() + 30  # tokens reach the node through the router: ask again
-while not any("/NN/" in t for t in tokens) and time.monotonic() < end:
+DEVICES = ("imu0", "imu1", "icm0", "bmi0", "bno0")
+def complete(tokens):
+    return any("/NN/" in t for t in tokens) and all(
+        any(f"%imud%{d}%imu%" in t for t in tokens) for d in DEVICES)
+while not complete(tokens) and time.monotonic() < end:
     tokens = [str(r.ok.key_expr) for r in node.liveliness().get("@ros2_lv/0/**", timeout=5)
               if r.ok]
     time.sleep(0.2)
