@@ -10,14 +10,17 @@ judges, |a| - g after correction, imud's fit against imu_tk's file applied to th
 from __future__ import annotations
 
 import gzip
+import itertools
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from imud.calib.accel import fit_accel_intervals
 from imud.calib.acceptance import MG, Acceptance
-from imud.calib.procedure import run_accel, run_mag
+from imud.calib.file import CalibrationFile
+from imud.calib.procedure import run_accel, run_gyro, run_mag
 from imud.calib.recording import Recording
 from imud.calib.still import find_still, interval_stats
 
@@ -142,3 +145,70 @@ def test_a_hand_turned_magnetometer_against_its_authors_calibration(session: str
           f"{out.report['residuals']['model_error'] * 1e6:.3f} uT")  # fmt: skip
     assert ours <= theirs
     assert np.all(np.abs(centre - their_centre) < within)
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def _turn(w: np.ndarray) -> np.ndarray:
+    """exp([w]x): Rodrigues' formula, written here (not imud's integrator)."""
+    th = float(np.linalg.norm(w))
+    if th < 1e-12:
+        return np.eye(3) + _skew(w)
+    k = _skew(w / th)
+    return np.eye(3) + np.sin(th) * k + (1.0 - np.cos(th)) * (k @ k)
+
+
+def rotation_errors(rec: Recording, counts: np.ndarray, gyro_counts: np.ndarray,
+                    accel: Any, gyro: Any) -> np.ndarray:  # fmt: skip
+    """Per rotation between consecutive still poses: the angle, degrees, between the gravity
+    direction the calibrated gyro carries over from the pose before and the one the calibrated
+    accelerometer sees after. `accel`, `gyro`: counts -> SI."""
+    poses = find_still(rec)
+    out = []
+    for a, b in itertools.pairwise(poses):
+        before = accel(counts[a.start : a.end].mean(axis=0))
+        after = accel(counts[b.start : b.end].mean(axis=0))
+        turn = np.eye(3)
+        for i in range(a.end - 1, b.start):
+            dt = float(rec.t_ns[i + 1] - rec.t_ns[i]) * 1e-9
+            turn = turn @ _turn(gyro(gyro_counts[i]) * dt)
+        carried = turn.T @ (before / np.linalg.norm(before))
+        cos = float(carried @ (after / np.linalg.norm(after)))
+        out.append(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    return np.array(out)
+
+
+def test_hand_turned_rotations_the_gyro_against_imu_tk(xsens: tuple[Recording, np.ndarray]) -> None:
+    rec, counts = xsens
+    with gzip.open(DATA / "xsens_imu_tk.csv.gz", "rt") as f:
+        gyro_counts = np.loadtxt(f, delimiter=",", skiprows=1)[:, 4:7]
+    acc = run_accel(rec, G, "full")
+    cf = acc.update(CalibrationFile(), "xsens")
+    gyr = run_gyro(rec, False, cf)
+    floor = gyr.report["residuals"]["model_error"]
+    assert gyr.accepted, gyr.reasons
+    assert 0 < floor < np.radians(1.0)
+    strict = run_gyro(rec, False, cf, acceptance=Acceptance(strict=True))
+    assert not strict.accepted
+    ca, ba = np.array(acc.report["matrix"]), np.array(acc.report["bias"])
+    cg, bg = np.array(gyr.report["matrix"]), np.array(gyr.report["bias"])
+    ours = rotation_errors(
+        rec, counts, gyro_counts,
+        lambda c: ca @ ((c - 32768.0) / NOMINAL_ACC - ba),
+        lambda c: cg @ ((c - 32768.0) / NOMINAL_GYR - bg),
+    )  # fmt: skip
+    tk_acc, tk_acc_b = imu_tk_accel()
+    v = np.array((DATA / "imu_tk_ref" / "test_imu_gyro.calib").read_text().split(), dtype=float)
+    tk_gyr, tk_gyr_b = v[:9].reshape(3, 3) @ v[9:18].reshape(3, 3), v[18:21]
+    theirs = rotation_errors(
+        rec, counts, gyro_counts,
+        lambda c: tk_acc @ (c - tk_acc_b),
+        lambda c: tk_gyr @ (c - tk_gyr_b),
+    )  # fmt: skip
+    rms_ours, rms_theirs = (float(np.sqrt(np.mean(e**2))) for e in (ours, theirs))
+    print(f"{len(ours)} hand-turned rotations: gravity carried by the gyro, RMS error imud "
+          f"{rms_ours:.3f} deg, imu_tk {rms_theirs:.3f} deg; gyro model error "
+          f"{np.degrees(floor):.2f} deg")  # fmt: skip
+    assert rms_ours <= rms_theirs

@@ -75,6 +75,7 @@ import numpy as np
 import numpy.typing as npt
 
 from imud import rotations as so3
+from imud.calib.acceptance import Acceptance, model_error_floor
 from imud.calib.estimate import AffineEstimate, Fit, Verdict
 from imud.calib.recording import Recording
 from imud.calib.stats import chi2_sf
@@ -618,6 +619,33 @@ def _solve(
     return _Solved(x, lin, iterations)
 
 
+# the model error accepted on each rotation by default: 1 deg, what a pose placed by hand and
+# a turn of a few seconds at 100 Hz leave (a scale error of 0.5 % over a quarter turn is 0.45 deg)
+GYRO_ROTATION_TOLERANCE = math.radians(1.0)
+
+
+def _rotation_floor(
+    noise: Callable[[_Linearised], F64],
+    lin: _Linearised,
+    n_mean: int,
+    n_par: int,
+    significance: float,
+) -> float:
+    """The rotations' model-error floor, rad: added to each rotation row's variance, it makes
+    the residuals' chi-squared its degrees of freedom."""
+    v = noise(lin)
+    n_rot = v.shape[0] - n_mean
+    eye = np.zeros(v.shape[0])
+    eye[:n_rot] = 1.0
+    dof = lin.r.shape[0] - n_par
+
+    def chi2_at(s2: float) -> float:
+        return float(lin.r @ np.linalg.solve(v + s2 * np.diag(eye), lin.r))
+
+    rms = float(np.sqrt(np.mean(lin.r[:n_rot] ** 2))) if n_rot else 0.0
+    return model_error_floor(chi2_at, dof, rms, significance)
+
+
 def fit_gyro_full(
     rec: Recording,
     intervals: list[StillInterval] | None = None,
@@ -626,6 +654,7 @@ def fit_gyro_full(
     accel: AffineEstimate | None = None,
     latitude_deg: float | None = None,
     significance: float = 0.01,
+    acceptance: Acceptance | None = None,
 ) -> AffineEstimate:
     """Gyro scale and misalignment (a general 3x3 C, procedure "gyro-full") from the rotations
     between consecutive still poses (see the module docstring).
@@ -642,6 +671,8 @@ def fit_gyro_full(
     the heading, reported in details["earth"]); None leaves it out. Raises CalibrationRefused
     when too few rotations were found; otherwise the verdict says whether C may be used (named
     undetermined axes, chi2; refused below p = `significance`)."""
+    acceptance = acceptance or Acceptance(significance=significance)
+    significance = acceptance.significance
     if intervals is None:
         intervals = find_still(rec)
     intervals = sorted(intervals, key=lambda iv: iv.start)
@@ -703,8 +734,19 @@ def fit_gyro_full(
     means = None if earth is None else np.array([iv.gyro for iv in intervals])
     cov_m = _block_diag(np.array([iv.gyro_cov for iv in intervals]))
     prob = _Problem(raw, dt, starts, u, motions, durations, full_turns, means, earth)
+    n_mean = 0 if means is None else means.size
+    floor2 = 0.0  # the model error's variance on each rotation's residual, rad^2
 
     def noise(lin: _Linearised) -> F64:
+        """The residuals' covariance: their noise and the model error found so far."""
+        v = measured(lin)
+        if floor2 > 0:  # on the rotations' rows: hand motion, a pose that settled, drift
+            n_rot = v.shape[0] - n_mean
+            v[np.arange(n_rot), np.arange(n_rot)] += floor2
+        return v
+
+    def measured(lin: _Linearised) -> F64:
+        """The residuals' covariance from the measured noise alone."""
         v = lin.d_u @ cov_u @ lin.d_u.T + lin.d_theta @ cov_theta @ lin.d_theta.T
         if means is not None:
             v += lin.d_m @ cov_m @ lin.d_m.T
@@ -743,6 +785,18 @@ def fit_gyro_full(
         sol = _solve(lambda y: _linearise(prob, y), weights, x, cols)
         sol = replace(sol, iterations=sol.iterations + first_iterations)
     x, lin, iterations = sol.x, sol.lin, sol.iterations
+    # a model error on the rotations, estimated only where the noise alone is refused, and the
+    # fit redone with it in the weights (imud/calib/acceptance.py)
+    floor = 0.0
+    for _ in range(10):
+        if acceptance.strict:
+            break
+        new = _rotation_floor(measured, lin, n_mean, len(cols), significance)
+        if abs(new - floor) <= 1e-3 * max(new, 1e-300):
+            break
+        floor, floor2 = new, new * new
+        sol = _solve(lambda y: _linearise(prob, y), weights, x, cols)
+        x, lin, iterations = sol.x, sol.lin, iterations + sol.iterations
     c, b = x[:9].reshape(3, 3).copy(), x[9:12].copy()
     vinv = weights(lin)
     jac = lin.jac[:, cols]
@@ -762,9 +816,11 @@ def fit_gyro_full(
     cov = cov_all[:12, :12]
     cov = 0.5 * (cov + cov.T)
     cov_c = cov_all[:9, :9]
-    chi2 = float(lin.r @ vinv @ lin.r)
+    chi2 = float(lin.r @ np.linalg.solve(measured(lin), lin.r))  # against the noise alone
     dof = lin.r.shape[0] - len(cols)
     p_value = chi2_sf(chi2, dof) if dof > 0 else 1.0
+    tolerance = acceptance.tolerance_for(GYRO_ROTATION_TOLERANCE)
+    notes_floor = ""
     # Earth's rotation against the noise: over the longest motion, and in a still pose's mean
     longest = float(np.max(durations))
     se_pose = float(np.min([np.sqrt(np.max(np.diag(iv.gyro_cov))) for iv in intervals]))
@@ -779,12 +835,25 @@ def fit_gyro_full(
     if means is not None:
         # the still poses' means alone (their block of the noise, their rows' share of chi2)
         n_mean = means.size
-        v_m = noise(lin)[-n_mean:, -n_mean:]
+        v_m = measured(lin)[-n_mean:, -n_mean:]
         r_m = lin.r[-n_mean:]
         chi2_m = float(r_m @ np.linalg.solve(v_m, r_m))
         dof_m = n_mean - (4 if free_bias else 1)  # less the bias and heading they determine
         pose_part = (chi2_m, dof_m, chi2_sf(chi2_m, dof_m) if dof_m > 0 else 1.0)
-    if p_value < significance:
+    if not acceptance.strict and floor > tolerance:
+        reasons.append(
+            f"the rotations hold a model error of {math.degrees(floor):.2f} deg each beyond "
+            f"their noise ({math.degrees(math.sqrt(n2)):.3f} deg/sqrt(s)), more than the "
+            f"tolerance of {math.degrees(tolerance):.2g} deg (--tolerance-deg): a pose moved, "
+            "the sensor was not still where it seemed, or samples were lost during a turn"
+        )
+    elif not acceptance.strict and floor > 0:
+        notes_floor = (
+            f"model error {math.degrees(floor):.2f} deg a rotation beyond the noise, within the "
+            f"tolerance of {math.degrees(tolerance):.2g} deg; the parameters' uncertainty "
+            "includes it"
+        )
+    if p_value < significance and (acceptance.strict or pose_part is not None):
         poses_fail = pose_part is not None and pose_part[2] < significance
         if pose_part is not None and poses_fail:
             chi2_m, dof_m, _ = pose_part
@@ -794,7 +863,9 @@ def fit_gyro_full(
                 "the bias drifted between poses (let the sensor warm up), the gyro is sensitive "
                 "to gravity (g-sensitivity), or the latitude is wrong"
             )
-        if not poses_fail or chi2 - (pose_part[0] if pose_part else 0.0) > 2 * dof:
+        if acceptance.strict and (
+            not poses_fail or chi2 - (pose_part[0] if pose_part else 0.0) > 2 * dof
+        ):
             earth_hint = (
                 f", or Earth's rotation (it integrates to {earth_turn:.1f} times the noise over "
                 "the longest rotation here: give the latitude, --latitude)"
@@ -810,6 +881,8 @@ def fit_gyro_full(
                 + "; capture again"
             )
     ok = not reasons
+    if ok and not acceptance.strict and floor > 0:
+        reasons.append(notes_floor)
     if gaps:
         reasons.append(
             f"samples are missing inside {len(gaps)} rotation(s) (the first after pose "
@@ -874,6 +947,7 @@ def fit_gyro_full(
             "dof": float(dof),
             "p_value": p_value,
             "noise": math.sqrt(n2),
+            "model_error": floor,  # rad, on each rotation's gravity direction
         },
         details,
     )

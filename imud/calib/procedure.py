@@ -275,6 +275,7 @@ def _fit_full(
     min_still_s: float,
     latitude_deg: float | None,
     significance: float = 0.01,
+    acceptance: Acceptance | None = None,
 ) -> AffineEstimate:
     """The gyro's full fit from the rotations between the recording's still poses."""
     from imud.calib.gyro import fit_gyro_full
@@ -282,7 +283,13 @@ def _fit_full(
 
     poses = find_still(rec, min_still_s)
     return fit_gyro_full(
-        rec, poses, None, full_turns, latitude_deg=latitude_deg, significance=significance
+        rec,
+        poses,
+        None,
+        full_turns,
+        latitude_deg=latitude_deg,
+        significance=significance,
+        acceptance=acceptance,
     )
 
 
@@ -316,6 +323,7 @@ def run_gyro(
     min_still_s: float = 2.0,
     latitude_deg: float | None = None,
     significance: float = 0.01,
+    acceptance: Acceptance | None = None,
 ) -> Outcome:
     """A still recording gives the bias; one with rotations between still poses gives the bias
     (from the poses) and the full matrix. The file's accelerometer calibration, when there is
@@ -338,7 +346,7 @@ def run_gyro(
                 "misalignment enter the gravity directions the rotations are checked against "
                 "(calibrate accel first, into the same file)"
             )
-        est = _fit_full(rec, full_turns, min_still_s, latitude_deg, significance)
+        est = _fit_full(rec, full_turns, min_still_s, latitude_deg, significance, acceptance)
         still = find_still(rec, min_s=min_still_s)
     report = affine_report(est)
     report["notes"] = notes

@@ -9,6 +9,7 @@ support a calibration (the reason is printed; nothing is written); 1 no daemon (
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -431,8 +432,26 @@ def accel(
     "poses can resolve",
 )
 @_significance
+@click.option(
+    "--strict",
+    is_flag=True,
+    help="accept only rotations whose residuals are the noise alone; by default a model error "
+    "within --tolerance-deg is accepted and reported",
+)
+@click.option(
+    "--tolerance-deg",
+    type=click.FloatRange(min=0.0, max=90.0),
+    help="the model error accepted on each rotation's gravity direction beyond the noise, "
+    "degrees (default 1)",
+)
 def gyro(
-    full_turns: bool, min_still: float, latitude: float | None, significance: float, **opts: Any
+    full_turns: bool,
+    min_still: float,
+    latitude: float | None,
+    significance: float,
+    strict: bool,
+    tolerance_deg: float | None,
+    **opts: Any,
 ) -> None:
     """Gyro bias from still data (its standard error from the data's own noise); with rotations
     between still poses, also scale and misalignment."""
@@ -451,7 +470,11 @@ def gyro(
     rec, notes = _prepared(job, rec)
     cf = job.existing() if job.out is not None else None
     try:
-        outcome = run_gyro(rec, full_turns, cf, min_still, latitude, significance)
+        from imud.calib.acceptance import Acceptance
+
+        tolerance = None if tolerance_deg is None else math.radians(tolerance_deg)
+        acceptance = Acceptance(strict, significance, tolerance)
+        outcome = run_gyro(rec, full_turns, cf, min_still, latitude, significance, acceptance)
     except CalibrationRefused as e:
         _refused(e, job.as_json)
     job.finish(outcome, None, notes, rec.source)
