@@ -68,7 +68,23 @@ def _source(f: Any) -> Any:
                 "--from",
                 "from_csv",
                 type=click.Path(dir_okay=False, exists=True),
-                help="offline: a recording (docs/recording-csv.md)",
+                help="offline: a recording (docs/recording-csv.md), or imu_tk's accelerometer "
+                "file (t x y z counts; then --gyro-from and --accel-counts/--gyro-counts)",
+            ),
+            click.option(
+                "--gyro-from",
+                type=click.Path(dir_okay=False, exists=True),
+                help="imu_tk's gyroscope file, the pair of --from's",
+            ),
+            click.option(
+                "--accel-counts",
+                help="imu_tk's files: accelerometer counts per m/s^2 and the count that reads "
+                "zero, e.g. 414,32768",
+            ),
+            click.option(
+                "--gyro-counts",
+                help="imu_tk's files: gyroscope counts per rad/s and the count that reads zero, "
+                "e.g. 4770,32768",
             ),
             click.option("--device", help="live: a device of the running daemon"),
             click.option(
@@ -195,7 +211,17 @@ class Job:
 
     def recording(self, live: Any = None) -> Any:
         from imud.calib.csvio import CsvError, read_comments, read_csv
+        from imud.calib.imutk import is_imu_tk
 
+        if self.o["from_csv"] is not None and is_imu_tk(Path(self.o["from_csv"])):
+            return self._imu_tk(Path(self.o["from_csv"]))
+        if self.o.get("gyro_from") is not None:
+            _fail(
+                f"--gyro-from goes with imu_tk's files, and {self.o['from_csv']} is not one "
+                "(its first line is not four numbers t x y z): give the CSV alone",
+                EXIT_USAGE,
+                self.as_json,
+            )
         if self.o["from_csv"] is not None:
             path = Path(self.o["from_csv"])
             try:
@@ -221,6 +247,36 @@ class Job:
             self.device_name = self.device_name or comments.get("device")
             return rec
         return live(self)
+
+    def _imu_tk(self, accel_path: Path) -> Any:
+        """imu_tk's pair of files (docs/recording-csv.md "imu_tk's files")."""
+        from imud.calib.imutk import ImuTkError, parse_counts, read_imu_tk
+
+        missing = [
+            flag
+            for flag, key in (
+                ("--gyro-from GYRO_FILE", "gyro_from"),
+                ("--accel-counts PER_UNIT,ZERO", "accel_counts"),
+                ("--gyro-counts PER_UNIT,ZERO", "gyro_counts"),
+            )
+            if self.o.get(key) is None
+        ]
+        if missing:
+            _fail(
+                f"{accel_path} is imu_tk's format (t x y z counts): give {', '.join(missing)} "
+                "(e.g. --accel-counts 414,32768 --gyro-counts 4770,32768 for its Xsens data)",
+                EXIT_USAGE,
+                self.as_json,
+            )
+        try:
+            return read_imu_tk(
+                accel_path,
+                Path(self.o["gyro_from"]),
+                parse_counts(self.o["accel_counts"], "accel"),
+                parse_counts(self.o["gyro_counts"], "gyro"),
+            )
+        except ImuTkError as e:
+            _fail(str(e), EXIT_USAGE, self.as_json)
 
     def existing(self) -> CalibrationFile:
         """The calibration file this run updates, read once (procedures consult it before

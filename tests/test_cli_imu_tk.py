@@ -1,0 +1,92 @@
+"""`imud calibrate --from` on imu_tk's own file format, as a user of imu_tk would run it: its
+Xsens test recording written back as its two text files (t x y z counts), the nominal scales on
+the command line, the accelerometer and then the gyro calibrated into one file; and what a
+wrong pair or a missing option is told."""
+
+from __future__ import annotations
+
+import gzip
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from imud.calib.file import read_calibration
+
+DATA = Path(__file__).parent / "data" / "xsens" / "xsens_imu_tk.csv.gz"
+COUNTS = ["--accel-counts", "414,32768", "--gyro-counts", "4770,32768"]
+
+
+def imud(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "imud", *args], capture_output=True, text=True, timeout=300
+    )
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """imu_tk's two files, as its test data has them (%.7e, whitespace)."""
+    with gzip.open(DATA, "rt") as f:
+        rows = np.loadtxt(f, delimiter=",", skiprows=1)
+    d = tmp_path_factory.mktemp("imu_tk")
+    acc, gyr = d / "xsens_acc.mat", d / "xsens_gyro.mat"
+    np.savetxt(acc, rows[:, [0, 1, 2, 3]], fmt="%15.7e")
+    np.savetxt(gyr, rows[:, [0, 4, 5, 6]], fmt="%15.7e")
+    return acc, gyr
+
+
+def test_accel_then_gyro_from_imu_tks_files(pair: tuple[Path, Path], tmp_path: Path) -> None:
+    acc, gyr = pair
+    out = tmp_path / "xsens.cal.toml"
+    src = ["--from", str(acc), "--gyro-from", str(gyr), *COUNTS, "--out", str(out)]
+    r = imud("calibrate", "accel", *src, "--gravity", "9.81744")
+    assert r.returncode == 0, r.stdout + r.stderr
+    r = imud("calibrate", "gyro", *src)
+    assert r.returncode == 0, r.stdout + r.stderr
+    cf = read_calibration(out)
+    assert cf.accel is not None and cf.gyro is not None and cf.accel.noise is not None
+    # imu_tk's own result on this recording (tests/data/xsens/imu_tk_ref): 414.459, 412.010,
+    # 414.649 counts per m/s^2, so against the nominal 414 the scale is 414 / theirs per axis
+    scale = np.diag(np.array(cf.accel.matrix))
+    np.testing.assert_allclose(scale, [414 / 414.459, 414 / 412.010, 414 / 414.649], atol=3e-4)
+
+
+@pytest.mark.parametrize(
+    ("change", "says"),
+    [
+        ("no gyro file", "give --gyro-from GYRO_FILE"),
+        ("no counts", "--accel-counts PER_UNIT,ZERO"),
+        ("bad counts", "--accel-counts 'x': give counts per unit"),
+        ("other instants", "do not hold the same instants (line 3"),
+        ("five fields", ":2: 5 fields; imu_tk's files have four per line"),
+    ],
+)
+def test_what_a_wrong_pair_is_told(
+    change: str, says: str, pair: tuple[Path, Path], tmp_path: Path
+) -> None:
+    acc, gyr = pair
+    args = ["--from", str(acc), "--gyro-from", str(gyr), *COUNTS]
+    if change == "no gyro file":
+        args = ["--from", str(acc), *COUNTS]
+    elif change == "no counts":
+        args = ["--from", str(acc), "--gyro-from", str(gyr)]
+    elif change == "bad counts":
+        args[args.index("414,32768")] = "x"
+    else:
+        lines = gyr.read_text().splitlines()[:100]
+        if change == "other instants":  # a gyro file stamped 1 ms later from its third line
+            for k in range(2, len(lines)):
+                t = float(lines[k].split()[0]) + 1e-3
+                lines[k] = f"{t:15.7e}" + lines[k][15:]
+        else:
+            lines[1] += " 1.0"
+        bad = tmp_path / "gyro.mat"
+        bad.write_text("\n".join(lines) + "\n")
+        short = tmp_path / "acc.mat"
+        short.write_text("\n".join(acc.read_text().splitlines()[:100]) + "\n")
+        args = ["--from", str(short), "--gyro-from", str(bad), *COUNTS]
+    r = imud("calibrate", "gyro", *args, "--out", str(tmp_path / "c.toml"))
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert says in r.stderr and "Traceback" not in r.stderr, r.stderr
