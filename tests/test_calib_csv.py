@@ -359,3 +359,24 @@ def test_the_example_in_the_docs_reads(tmp_path: Path) -> None:
     assert rec.n == 3 and rec.rate_hz == pytest.approx(100.0)
     assert rec.saturated is not None and rec.saturated.tolist() == [False, False, True]
     assert read_comments(path)["samples"] == "raw"
+
+
+def test_a_magnetometer_session_holds_only_the_magnetometer(tmp_path: Path) -> None:
+    """A tool's preamble (`Fs,50.00`) above `mx,my,mz` and no time: 50 Hz rows; no accelerometer
+    or gyro is needed for it, and theirs read as NaN, never as values."""
+    path = tmp_path / "mag.csv"
+    rows = "\n".join(f"{20 + k},{-5 - k},{40 + 2 * k}" for k in range(10))
+    path.write_text(f"Fs,50.00\nInitialization time,60\nmx,my,mz\n{rows}\n")
+    rec = read_csv(path, mag_units="uT", need=("mag",))
+    assert rec.n == 10 and rec.rate_hz == pytest.approx(50.0)
+    assert rec.t_ns[1] - rec.t_ns[0] == 20_000_000
+    assert rec.mag is not None and rec.mag[0].tolist() == pytest.approx([20e-6, -5e-6, 40e-6])
+    assert np.isnan(rec.accel).all() and np.isnan(rec.gyro).all()
+    counts = read_csv(path, need=("mag",), mag_per_ut=0.5)  # 0.5 counts a uT
+    assert counts.mag is not None and counts.mag[0, 0] == pytest.approx(40e-6)
+    with pytest.raises(CsvError, match="missing required columns ax, ay, az, gx, gy, gz"):
+        read_csv(path, mag_units="uT")  # an accel/gyro calibration needs theirs
+    path.write_text(f"mx,my,mz\n{rows}\n")
+    with pytest.raises(CsvError, match="missing required columns timestamp_ns"):
+        read_csv(path, mag_units="uT", need=("mag",))  # no time and no rate: said
+    assert read_csv(path, mag_units="uT", need=("mag",), rate_hz=10.0).rate_hz == 10.0

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import gzip
 import itertools
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +21,7 @@ import pytest
 
 from imud.calib.accel import fit_accel_intervals
 from imud.calib.acceptance import MG, Acceptance
-from imud.calib.file import CalibrationFile
+from imud.calib.file import CalibrationFile, read_calibration
 from imud.calib.procedure import run_accel, run_gyro, run_mag
 from imud.calib.recording import Recording
 from imud.calib.still import find_still, interval_stats
@@ -212,3 +214,24 @@ def test_hand_turned_rotations_the_gyro_against_imu_tk(xsens: tuple[Recording, n
           f"{rms_ours:.3f} deg, imu_tk {rms_theirs:.3f} deg; gyro model error "
           f"{np.degrees(floor):.2f} deg")  # fmt: skip
     assert rms_ours <= rms_theirs
+
+
+def test_the_authors_file_as_it_is_through_the_cli(tmp_path: Path) -> None:
+    """Their file unchanged (its `Fs,50.00` preamble, counts, no time, no accelerometer):
+    `imud calibrate mag --from FILE --mag-counts 30` (a QMC5883L at +-8 G: 30 counts a uT)."""
+    path = tmp_path / "noisy_raw_data.csv"
+    with gzip.open(QMC / "noisy_raw_data.csv.gz", "rb") as f:
+        path.write_bytes(f.read())
+    out = tmp_path / "qmc.cal.toml"
+    r = subprocess.run(
+        [sys.executable, "-m", "imud", "calibrate", "mag", "--from", str(path),
+         "--mag-counts", "30", "--out", str(out)],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
+    cf = read_calibration(out)
+    assert cf.mag is not None
+    centre = np.array(cf.mag.bias) * 1e6 * 30  # tesla -> uT -> counts
+    p = np.loadtxt(QMC / "parameters_mag.csv")
+    theirs = -np.linalg.solve(p[:9].reshape(3, 3), p[9:])
+    assert np.all(np.abs(centre - theirs) < 20.0), (centre, theirs)

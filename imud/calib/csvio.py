@@ -163,6 +163,7 @@ def _normalise(name: str) -> str:
 # '%' made one "_" ("field.angular_velocity.x" -> "field_angular_velocity_x").
 
 TIME, COUNTER = "time", "counter"  # the two ways a file says when each sample was taken
+ROW = "row"  # or neither: each row one sample at a stated rate
 _ACCEL_WORDS = ("acc", "accel", "accelerometer", "acceleration", "linear_acceleration",
                 "field_linear_acceleration", "alpha", "a_rs_s")  # fmt: skip
 _GYRO_WORDS = ("gyr", "gyro", "gyroscope", "angular_velocity", "field_angular_velocity", "omega",
@@ -278,7 +279,12 @@ def _suggest(labels: list[str], known: set[str]) -> dict[str, str]:
 
 
 def _columns(
-    path: Path, header_line: int, labels: list[str], units: dict[str, str]
+    path: Path,
+    header_line: int,
+    labels: list[str],
+    units: dict[str, str],
+    need: tuple[str, ...] = ("accel", "gyro"),
+    rate_known: bool = False,
 ) -> dict[str, _Column]:
     """Quantity -> the column that holds it, with every header problem refused: two columns
     for one quantity, a unit in a name that contradicts the options, missing columns."""
@@ -325,10 +331,11 @@ def _columns(
                 header_line,
                 col.label,
             )
-    required = ["ax", "ay", "az", "gx", "gy", "gz"]
-    missing = (["timestamp_ns"] if TIME not in out and COUNTER not in out else []) + [
-        c for c in required if c not in out
-    ]
+    axes = {"accel": ["ax", "ay", "az"], "gyro": ["gx", "gy", "gz"], "mag": ["mx", "my", "mz"]}
+    required = [c for sensor in need for c in axes[sensor]]
+    # without a time column or a counter, a rate (--rate, or the preamble's) times the rows
+    untimed = TIME not in out and COUNTER not in out and not rate_known
+    missing = (["timestamp_ns"] if untimed else []) + [c for c in required if c not in out]
     if missing:
         msg = f"missing required columns {', '.join(missing)}; the header has: {', '.join(labels)}"
         raw = ",".join(labels)
@@ -349,11 +356,12 @@ def _columns(
                 "options if that tool's units are not SI)"
             )
         raise CsvError(path, msg, header_line)
-    mag = [c for c in ("mx", "my", "mz") if c in out]
-    if 0 < len(mag) < 3:
-        lacking = ", ".join(c for c in ("mx", "my", "mz") if c not in out)
-        have = ", ".join(out[c].label for c in mag)
-        raise CsvError(path, f"has {have} but not {lacking}", header_line)
+    for cs in axes.values():  # a sensor is all there or not at all
+        present = [c for c in cs if c in out]
+        if 0 < len(present) < 3:
+            lacking = ", ".join(c for c in cs if c not in out)
+            have = ", ".join(out[c].label for c in present)
+            raise CsvError(path, f"has {have} but not {lacking}", header_line)
     return out
 
 
@@ -396,6 +404,16 @@ def _time_plan(
                 col.label,
             )
         return TIME, said or time_units
+    if COUNTER not in cols:
+        if rate_hz is None:
+            raise CsvError(
+                path,
+                "no time column and no sample counter: name the time column timestamp_ns, "
+                "time, timestamp or t (with --time-units), or give the rate of a file whose rows "
+                "are one sample each (--rate HZ, or a preamble line such as Fs,50)",
+                header_line,
+            )
+        return ROW, None
     col = cols[COUNTER]
     if time_units is not None:
         raise CsvError(
@@ -480,8 +498,8 @@ def _median_norm(v: F64) -> float:
 
 
 def _unit_problems(
-    accel: F64,
-    gyro: F64,
+    accel: F64 | None,
+    gyro: F64 | None,
     temp: F64 | None,
     mag: F64 | None,
     units: tuple[AccelUnits, GyroUnits, MagUnits],
@@ -492,9 +510,9 @@ def _unit_problems(
     accel_units, gyro_units, mag_units = units
     out: list[tuple[tuple[str, ...], str]] = []
 
-    a = _median_norm(accel)
-    a_si = a * (gravity if accel_units == "g" else 1.0)
-    if not gravity / ACCEL_RATIO <= a_si <= gravity * ACCEL_RATIO:
+    a = _median_norm(accel) if accel is not None else gravity
+    a_si = a * (gravity if accel_units == "g" and accel is not None else 1.0)
+    if accel is not None and not gravity / ACCEL_RATIO <= a_si <= gravity * ACCEL_RATIO:
         said = f"the median |accel| is {a:.4g} {accel_units}, not near gravity ({gravity:g} m/s^2)"
         if accel_units == "m/s2" and 1 / ACCEL_RATIO <= a <= ACCEL_RATIO:
             hint = "looks like g: pass --accel-units g"
@@ -506,7 +524,7 @@ def _unit_problems(
             hint = "milli-g or raw counts? convert to m/s^2 or g"
         out.append((("ax", "ay", "az"), f"{said}: {hint}"))
 
-    w = float(np.percentile(np.max(np.abs(gyro), axis=1), 99))
+    w = float(np.percentile(np.max(np.abs(gyro), axis=1), 99)) if gyro is not None else 0.0
     w_si = w * (math.pi / 180 if gyro_units == "dps" else 1.0)
     if w_si > GYRO_MAX_RAD_S:
         said = (
@@ -557,8 +575,17 @@ def read_csv(
     *,
     time_units: TimeUnits | None = None,
     rate_hz: float | None = None,
+    need: tuple[str, ...] = ("accel", "gyro"),
+    mag_per_ut: float | None = None,
 ) -> Recording:
     """Read a recording (docs/recording-csv.md) into SI units.
+
+    need: the sensors whose columns must be there ("accel", "gyro", "mag"): a recording holds
+    what it measured, so a magnetometer session needs no accelerometer; a sensor not needed and
+    not in the file reads as NaN (never as a value). mag_per_ut: the magnetometer columns are
+    raw counts, this many a microtesla. Lines before the header of the form `name,number` are
+    the file's preamble (a tool's `Fs,50.00`): `Fs`, `rate` or `sample_rate` gives the rate of a
+    file with neither a time column nor a sample counter, each row then one sample.
 
     accel_units "g" multiplies by `gravity` (pass the local g the file's tool used, if it said);
     gyro_units "dps" converts deg/s to rad/s; mag_units "uT" converts to tesla. Other tools'
@@ -580,6 +607,8 @@ def read_csv(
         raise ValueError(f"rate_hz must be a positive number of Hz, not {rate_hz!r}")
     if not (math.isfinite(gravity) and gravity > 0):
         raise ValueError(f"gravity must be a positive number of m/s^2, not {gravity!r}")
+    if mag_per_ut is not None and not (math.isfinite(mag_per_ut) and mag_per_ut > 0):
+        raise ValueError(f"mag_per_ut must be a positive number of counts, not {mag_per_ut!r}")
 
     buf = path.read_bytes()
     buf = buf.removeprefix(b"\xef\xbb\xbf")  # the UTF-8 byte order mark some editors write
@@ -593,6 +622,12 @@ def read_csv(
     h = int(content[0])
     header_text = buf[lines.start[h] : lines.stop[h]].decode("utf-8", "replace")
     rows = content[1:]
+    preamble: dict[str, float] = {}
+    while rows.size and (item := _preamble_item(header_text)) is not None:
+        preamble[item[0]] = item[1]  # `Fs,50.00` above the header: the tool's own notes
+        h, rows = int(rows[0]), rows[1:]
+        header_text = buf[lines.start[h] : lines.stop[h]].decode("utf-8", "replace")
+    stated = next((v for k, v in preamble.items() if k in _RATE_NAMES), None)
     commented = _commented_header(buf, lines, h, header_text)
     if commented is not None:  # EuRoC style: "#timestamp [ns],w_RS_S_x [rad s^-1],..."
         h, header_text = commented
@@ -600,7 +635,11 @@ def read_csv(
     header_line = h + 1
     labels = [x.strip().strip("\"'").strip() for x in header_text.split(",")]
     units: dict[str, str] = {"a": accel_units, "g": gyro_units, "m": mag_units}
-    cols = _columns(path, header_line, labels, units)
+    cols = _columns(
+        path, header_line, labels, units, need, rate_hz is not None or stated is not None
+    )
+    if TIME not in cols and COUNTER not in cols and rate_hz is None and stated is not None:
+        rate_hz = stated  # the preamble's rate, for a file of rows one sample each
     when, unit = _time_plan(path, header_line, cols, time_units, rate_hz)
     if when == TIME:
         cols.pop(COUNTER, None)  # a counter beside a time column is not read
@@ -636,8 +675,19 @@ def read_csv(
         raise _conversion_error(path, int(line_of[k]), blob[k], cols, dtype) from None
     t_ns = _times(path, table, cols, (header_line, line_of), when, unit, rate_hz)
     return _recording(
-        path, table, cols, t_ns, line_of, (accel_units, gyro_units, mag_units), gravity
+        path, table, cols, t_ns, line_of, (accel_units, gyro_units, mag_units), gravity, mag_per_ut
     )
+
+
+_RATE_NAMES = frozenset({"fs", "rate", "rate_hz", "sample_rate", "sampling_rate"})
+
+
+def _preamble_item(text: str) -> tuple[str, float] | None:
+    """`name,number` (a preamble line a tool writes above its header), normalised name."""
+    fields = [f.strip() for f in text.split(",")]
+    if len(fields) != 2 or _is_number(fields[0]) or not _is_number(fields[1]):
+        return None
+    return _normalise(fields[0]), float(fields[1])
 
 
 def _commented_header(
@@ -676,6 +726,10 @@ def _times(
     and the rate; refused when it does not strictly increase, when no unit was said, or when
     the unit gives a sample rate no IMU has. lines: the header's line and each row's."""
     header_line, line_of = lines
+    if when == ROW:
+        assert rate_hz is not None
+        n = table.shape[0]
+        return np.round(np.arange(n, dtype=np.float64) * (1e9 / rate_hz)).astype(np.int64)
     col = cols[when]
     v = np.ascontiguousarray(table[when])
     if when == TIME and v.dtype == np.float64:
@@ -756,6 +810,7 @@ def _recording(
     line_of: I64,
     units: tuple[AccelUnits, GyroUnits, MagUnits],
     gravity: float,
+    mag_per_ut: float | None = None,
 ) -> Recording:
     """Checks on the parsed values (finite, plausible units), then SI units."""
     names = table.dtype.names or ()
@@ -788,21 +843,35 @@ def _recording(
     def vec(a: str, b: str, c: str) -> F64:
         return np.column_stack([table[a], table[b], table[c]])
 
-    accel, gyro = vec("ax", "ay", "az"), vec("gx", "gy", "gz")
+    n = table.shape[0]
+    absent = np.full((n, 3), np.nan)  # a sensor the recording does not hold: never a value
+    accel = vec("ax", "ay", "az") if "ax" in names else None
+    gyro = vec("gx", "gy", "gz") if "gx" in names else None
     temp = np.ascontiguousarray(table["temp"], np.float64) if "temp" in names else None
     mag = vec("mx", "my", "mz") if "mx" in names else None
+    if mag is not None and mag_per_ut is not None:
+        mag = mag / mag_per_ut  # counts -> uT, then checked and converted as uT
+        units = (units[0], units[1], "uT")
     problems = _unit_problems(accel, gyro, temp, mag, units, gravity)
     if problems:
         cols_text = "; ".join(", ".join(cols[q].label for q in qs) for qs, _ in problems)
         raise CsvError(path, "; ".join(p for _, p in problems), None, cols_text)
     accel_units, gyro_units, mag_units = units
-    if accel_units == "g":
+    if accel is not None and accel_units == "g":
         accel *= gravity
-    if gyro_units == "dps":
+    if gyro is not None and gyro_units == "dps":
         gyro *= math.pi / 180
     if mag is not None and mag_units == "uT":
         mag *= 1e-6
-    return Recording(t, accel, gyro, temp, mag, saturated, str(path))
+    return Recording(
+        t,
+        absent if accel is None else accel,
+        absent.copy() if gyro is None else gyro,
+        temp,
+        mag,
+        saturated,
+        str(path),
+    )
 
 
 def read_comments(path: Path) -> dict[str, str]:

@@ -82,6 +82,12 @@ def _source(f: Any) -> Any:
                 "zero, e.g. 414,32768",
             ),
             click.option(
+                "--mag-counts",
+                type=click.FloatRange(min=0.0, min_open=True),
+                help="the magnetometer columns are raw counts, this many a microtesla (e.g. 30 "
+                "for a QMC5883L at +-8 G)",
+            ),
+            click.option(
                 "--gyro-counts",
                 help="imu_tk's files: gyroscope counts per rad/s and the count that reads zero, "
                 "e.g. 4770,32768",
@@ -233,6 +239,9 @@ class Job:
                     self.o["mag_units"],
                     time_units=self.o["time_units"],
                     rate_hz=self.o["rate_hz"],
+                    # a recording holds what it measured: a magnetometer session needs no more
+                    need=("mag",) if self.kind == "mag" else ("accel", "gyro"),
+                    mag_per_ut=self.o.get("mag_counts"),
                 )
             except CsvError as e:
                 _fail(str(e), EXIT_USAGE, self.as_json)
