@@ -6,6 +6,7 @@ wrong pair or a missing option is told."""
 from __future__ import annotations
 
 import gzip
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -90,3 +91,22 @@ def test_what_a_wrong_pair_is_told(
     r = imud("calibrate", "gyro", *args, "--out", str(tmp_path / "c.toml"))
     assert r.returncode == 2, r.stdout + r.stderr
     assert says in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_holdout_and_compare(pair: tuple[Path, Path], tmp_path: Path) -> None:
+    """--holdout judges the fit on still windows it did not see; --compare judges a file on the
+    same windows (here imud's own calibration of the whole recording, which did see them)."""
+    acc, gyr = pair
+    full = tmp_path / "full.cal.toml"
+    src = ["--from", str(acc), "--gyro-from", str(gyr), *COUNTS, "--gravity", "9.81744"]
+    assert imud("calibrate", "accel", *src, "--out", str(full)).returncode == 0
+    r = imud("calibrate", "accel", *src, "--dry-run", "--holdout", "--compare", str(full), "--json")
+    assert r.returncode == 0, r.stderr
+    held = json.loads(r.stdout)["holdout"]
+    rms = held["rms_m_s2"]
+    assert held["windows"] == 78  # 39 still poses, each judged in both halves
+    assert rms["calibrated"] < rms["uncalibrated"] / 100  # the nominal scale is ~1 % off
+    assert rms["seed"] is None and "six faces" in held["notes"][0]  # a hand-held session
+    assert rms["compare"] < rms["calibrated"] * 1.2  # a fit that saw them does a little better
+    r = imud("calibrate", "accel", *src, "--dry-run", "--compare", str(acc))
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr

@@ -160,8 +160,12 @@ def run_accel(
     min_s: float = 2.0,
     significance: float = 0.01,
     acceptance: Acceptance | None = None,
+    holdout: bool = False,
+    compare: CalibrationFile | None = None,
 ) -> Outcome:
-    """Raises CalibrationRefused when no estimate can be formed at all."""
+    """Raises CalibrationRefused when no estimate can be formed at all. `holdout`: also judge
+    the method on still windows it was not fitted to (imud/calib/holdout.py), beside the
+    uncalibrated data, the seed's method and `compare`'s accelerometer table."""
     from imud.calib.accel import fit_accel
 
     check_recording(rec, ("accel",))
@@ -176,6 +180,17 @@ def run_accel(
     report["dropped"] = list(res.dropped)
     if res.seed is not None:
         report["seed_up_down"] = {"bias": _floats(res.seed.bias), "scale": _floats(res.seed.scale)}
+    if holdout or compare is not None:
+        from imud.calib.holdout import accel_holdout
+
+        table = None if compare is None else compare.accel
+        transform = None
+        if table is not None:
+            m = sensor_model(table)
+            transform = lambda x: (x - m.bias) @ m.matrix.T  # noqa: E731
+        report["holdout"] = accel_holdout(
+            rec, res.intervals, gravity, model, acceptance, transform
+        ).to_json()
     reasons = [*res.dropped, *est.verdict.reasons]
     return Outcome(
         "accel",

@@ -357,6 +357,21 @@ def _plot(kind: str, outcome: Any, path: Path, as_json: bool) -> None:
     draw(kind, outcome, path)
 
 
+def _compare_file(path: str | None, as_json: bool) -> Any:
+    """The calibration file --compare names, read (a bad one is a usage error, said)."""
+    if path is None:
+        return None
+    from imud.calib.file import CalibrationError, read_calibration
+
+    try:
+        cf = read_calibration(Path(path))
+    except CalibrationError as e:
+        _fail(str(e), EXIT_USAGE, as_json)
+    if cf.accel is None:
+        _fail(f"--compare {path}: the file has no [accel] table to compare", EXIT_USAGE, as_json)
+    return cf
+
+
 def _refused(e: Exception, as_json: bool) -> None:
     if as_json:
         click.echo(json.dumps({"accepted": False, "reasons": [str(e)], "written": None}))
@@ -435,6 +450,18 @@ def _gravity(job: Job, gravity: float | None, lat: float | None, h: float | None
     help="the model error accepted beyond the noise, mg (default 5 for --model full, 17.5, "
     "about 1 deg of pose error, for axes)",
 )
+@click.option(
+    "--holdout",
+    is_flag=True,
+    help="also judge the fit on still windows it did not see (each pose split in time, two "
+    "folds): |a| - g beside the uncalibrated data and the seed's six-face method",
+)
+@click.option(
+    "--compare",
+    "compare_path",
+    type=click.Path(dir_okay=False, exists=True),
+    help="a calibration file (imud's) judged on the same held-out windows; implies --holdout",
+)
 def accel(
     gravity: float | None,
     latitude: float | None,
@@ -445,6 +472,8 @@ def accel(
     significance: float,
     strict: bool,
     tolerance_mg: float | None,
+    holdout: bool,
+    compare_path: str | None,
     **opts: Any,
 ) -> None:
     """Accelerometer bias, scale and misalignment from still poses against local gravity.
@@ -475,7 +504,16 @@ def accel(
     try:
         tolerance = None if tolerance_mg is None else tolerance_mg * MG
         acceptance = Acceptance(strict, significance, tolerance)
-        outcome = run_accel(rec, g, model, min_s=min_still, acceptance=acceptance)  # type: ignore[arg-type]
+        compare = _compare_file(compare_path, job.as_json)
+        outcome = run_accel(
+            rec,
+            g,
+            model,  # type: ignore[arg-type]
+            min_s=min_still,
+            acceptance=acceptance,
+            holdout=holdout,
+            compare=compare,
+        )
     except CalibrationRefused as e:
         _refused(e, job.as_json)
     job.finish(outcome, note, notes, rec.source)

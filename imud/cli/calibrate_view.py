@@ -68,6 +68,17 @@ def show(report: dict[str, Any], console: Console | None = None) -> None:
         res = r.get("residuals", {})
         if res:
             con.print("  residuals: " + ", ".join(f"{k} {_fmt(v)}" for k, v in res.items()))
+        held = r.get("holdout")
+        if held:
+            names = {"calibrated": "this calibration", "uncalibrated": "uncalibrated",
+                     "seed": "seed six-face", "compare": "--compare file"}  # fmt: skip
+            parts = [f"{names.get(k, k)} {v * 1e3:.3f}" for k, v in held["rms_m_s2"].items() if v]
+            con.print(
+                f"  held out ({held['windows']} still windows, |a| - g RMS, mm/s^2): "
+                + ", ".join(parts)
+            )
+            for note in held.get("notes", []):
+                con.print(f"    {note}")
         seed = r.get("seed_up_down")
         if seed:
             unit, k = _BIAS_UNIT["accel"]
