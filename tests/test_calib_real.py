@@ -166,7 +166,8 @@ def rotation_errors(rec: Recording, counts: np.ndarray, gyro_counts: np.ndarray,
                     accel: Any, gyro: Any) -> np.ndarray:  # fmt: skip
     """Per rotation between consecutive still poses: the angle, degrees, between the gravity
     direction the calibrated gyro carries over from the pose before and the one the calibrated
-    accelerometer sees after. `accel`, `gyro`: counts -> SI."""
+    accelerometer sees after. `accel`: counts -> SI; `gyro`: (counts, that sample's calibrated
+    specific force) -> rad/s."""
     poses = find_still(rec)
     out = []
     for a, b in itertools.pairwise(poses):
@@ -175,7 +176,7 @@ def rotation_errors(rec: Recording, counts: np.ndarray, gyro_counts: np.ndarray,
         turn = np.eye(3)
         for i in range(a.end - 1, b.start):
             dt = float(rec.t_ns[i + 1] - rec.t_ns[i]) * 1e-9
-            turn = turn @ _turn(gyro(gyro_counts[i]) * dt)
+            turn = turn @ _turn(gyro(gyro_counts[i], accel(counts[i])) * dt)
         carried = turn.T @ (before / np.linalg.norm(before))
         cos = float(carried @ (after / np.linalg.norm(after)))
         out.append(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
@@ -191,7 +192,10 @@ def test_hand_turned_rotations_the_gyro_against_imu_tk(xsens: tuple[Recording, n
     gyr = run_gyro(rec, False, cf)
     floor = gyr.report["residuals"]["model_error"]
     assert gyr.accepted, gyr.reasons
-    assert 0 < floor < np.radians(1.0)
+    assert floor < np.radians(1.0)
+    gsens = gyr.report["g_sensitivity"]
+    assert gsens["included"] and gsens["p_value"] < 1e-6  # the still poses ask for it
+    g = np.array(gsens["matrix_rad_s_per_m_s2"])
     strict = run_gyro(rec, False, cf, acceptance=Acceptance(strict=True))
     assert not strict.accepted
     ca, ba = np.array(acc.report["matrix"]), np.array(acc.report["bias"])
@@ -199,7 +203,7 @@ def test_hand_turned_rotations_the_gyro_against_imu_tk(xsens: tuple[Recording, n
     ours = rotation_errors(
         rec, counts, gyro_counts,
         lambda c: ca @ ((c - 32768.0) / NOMINAL_ACC - ba),
-        lambda c: cg @ ((c - 32768.0) / NOMINAL_GYR - bg),
+        lambda c, a: cg @ ((c - 32768.0) / NOMINAL_GYR - bg - g @ a),  # as the daemon applies it
     )  # fmt: skip
     tk_acc, tk_acc_b = imu_tk_accel()
     v = np.array((DATA / "imu_tk_ref" / "test_imu_gyro.calib").read_text().split(), dtype=float)
@@ -207,12 +211,13 @@ def test_hand_turned_rotations_the_gyro_against_imu_tk(xsens: tuple[Recording, n
     theirs = rotation_errors(
         rec, counts, gyro_counts,
         lambda c: tk_acc @ (c - tk_acc_b),
-        lambda c: tk_gyr @ (c - tk_gyr_b),
+        lambda c, a: tk_gyr @ (c - tk_gyr_b),
     )  # fmt: skip
     rms_ours, rms_theirs = (float(np.sqrt(np.mean(e**2))) for e in (ours, theirs))
     print(f"{len(ours)} hand-turned rotations: gravity carried by the gyro, RMS error imud "
           f"{rms_ours:.3f} deg, imu_tk {rms_theirs:.3f} deg; gyro model error "
-          f"{np.degrees(floor):.2f} deg")  # fmt: skip
+          f"{np.degrees(floor):.2f} deg; g-sensitivity up to "
+          f"{np.degrees(np.abs(g).max()) * 9.80665:.3f} deg/s per g")  # fmt: skip
     assert rms_ours <= rms_theirs
 
 

@@ -125,6 +125,8 @@ class SensorTable(_Strict):
     notes: list[str] = Field(default_factory=list)
     temperature: TempTable | None = None
     noise: NoiseTable | None = None
+    # the gyro's bias per m/s^2 of specific force (imud/calib/gsens.py), rad/s per m/s^2
+    g_sensitivity: tuple[Vec3, Vec3, Vec3] | None = None
 
     @model_validator(mode="after")
     def _one_of(self) -> SensorTable:
@@ -167,6 +169,17 @@ class CalibrationFile(_Strict):
     def sensor(self, name: str) -> SensorTable | None:
         return {"accel": self.accel, "gyro": self.gyro, "mag": self.mag}[name]
 
+    @model_validator(mode="after")
+    def _g_sensitivity_is_the_gyros(self) -> CalibrationFile:
+        for name in ("accel", "mag"):
+            t = self.sensor(name)
+            if t is not None and t.g_sensitivity is not None:
+                raise ValueError(
+                    f"[{name}] g_sensitivity: only the gyro's bias follows the specific force; "
+                    "move it to [gyro] or delete it"
+                )
+        return self
+
 
 def _where(loc: tuple[int | str, ...]) -> str:
     return ".".join(str(p) for p in loc) or "(top level)"
@@ -205,7 +218,8 @@ def sensor_model(t: SensorTable) -> SensorModel:
         tt = t.temperature
         temp = TempPoly(tt.reference_c, np.asarray(tt.coefficients, dtype=np.float64),
                         (float(tt.span_c[0]), float(tt.span_c[1])))  # fmt: skip
-    return SensorModel(np.asarray(t.bias, dtype=np.float64), t.transform(), temp)
+    g = None if t.g_sensitivity is None else np.asarray(t.g_sensitivity, dtype=np.float64)
+    return SensorModel(np.asarray(t.bias, dtype=np.float64), t.transform(), temp, g)
 
 
 def to_model(cf: CalibrationFile, path: Path) -> CalibrationModel:
@@ -387,19 +401,26 @@ def _finite(d: dict[str, float]) -> dict[str, float]:
     return {k: float(v) for k, v in d.items() if isinstance(v, int | float) and math.isfinite(v)}
 
 
-def with_affine(cf: CalibrationFile, est: AffineEstimate, source: str) -> CalibrationFile:
+def with_affine(
+    cf: CalibrationFile, est: AffineEstimate, source: str, g_sensitivity: Any = None
+) -> CalibrationFile:
     """`cf` with one sensor's bias and matrix replaced by an estimate (its temperature
     polynomial, if any, is kept: the estimate was made on temperature-compensated data)."""
     old = cf.sensor(est.sensor)
     try:
-        table = _affine_table(est, source, old)
+        table = _affine_table(est, source, old, g_sensitivity)
     except ValidationError as e:  # a fit no file can hold (singular, mirrored, ill-conditioned)
         msgs = "; ".join(f"{_where(err['loc'])}: {err['msg']}" for err in e.errors())
         raise CalibrationError(f"[{est.sensor}] cannot be written: {msgs}") from None
     return cf.model_copy(update={est.sensor: table, "written": now_iso()})
 
 
-def _affine_table(est: AffineEstimate, source: str, old: SensorTable | None) -> SensorTable:
+def _affine_table(
+    est: AffineEstimate, source: str, old: SensorTable | None, g_sensitivity: Any = None
+) -> SensorTable:
+    g = None
+    if g_sensitivity is not None:
+        g = tuple(tuple(float(x) for x in row) for row in np.asarray(g_sensitivity))
     return SensorTable(
         bias=tuple(float(x) for x in est.bias),
         matrix=tuple(tuple(float(x) for x in row) for row in est.matrix),
@@ -414,6 +435,7 @@ def _affine_table(est: AffineEstimate, source: str, old: SensorTable | None) -> 
         notes=list(est.verdict.reasons),
         temperature=None if old is None else old.temperature,
         noise=None if old is None else old.noise,  # until this procedure measures it anew
+        g_sensitivity=g,  # what this calibration found (None: none, or not tested)
     )
 
 

@@ -4,6 +4,10 @@ Per sensor (accelerometer, gyroscope, magnetometer):
 
     corrected = C @ (raw - b - p(T))        p(T) = sum_k c_k (T - T_ref)^k,  k = 1..3
 
+and for the gyroscope, when its calibration found g-sensitivity (imud/calib/gsens.py), the bias
+also follows the specific force: raw - b - p(T) - G a, with a the sample's corrected
+accelerometer reading (a delta angle takes the delta velocity over its period).
+
 C undoes scale and misalignment (or soft iron), b is the bias (or hard iron) at T_ref, and p is
 the bias's temperature polynomial, without a constant term (that is b). Outside the span the
 polynomial was fitted on, T is clamped to the span's edge and the sample is flagged: a cubic
@@ -52,6 +56,7 @@ class SensorModel:
     bias: F64  # (3,)
     matrix: F64  # (3, 3)
     temp: TempPoly | None = None
+    g_sensitivity: F64 | None = None  # (3, 3) rad/s per m/s^2, gyroscope only
 
 
 @dataclass(frozen=True)
@@ -127,5 +132,20 @@ def apply(
                 if out_of_span.any():
                     flagged = out_of_span if flagged is None else flagged | out_of_span
             offsets[name] = off
-        out[ch] = (values - (off * dt_s if delta else off)) @ model.matrix.T
+        total = off * dt_s if delta else off
+        if model.g_sensitivity is not None:
+            force = _specific_force(out, delta, dt_s)
+            if force is not None:
+                g_term = force @ model.g_sensitivity.T
+                total = total + (g_term * dt_s if delta else g_term)
+        out[ch] = (values - total) @ model.matrix.T
     return out, flagged
+
+
+def _specific_force(out: dict[Channel, F64], delta: bool, dt_s: float) -> F64 | None:
+    """The corrected specific force of each sample, for the gyro's g-sensitivity term: the
+    accelerometer (for a delta angle, its delta velocity over the period when the chip gives
+    one); None when the batch has neither."""
+    if delta and Channel.DELTA_VELOCITY in out and dt_s > 0:
+        return out[Channel.DELTA_VELOCITY] / dt_s
+    return out.get(Channel.ACCEL)

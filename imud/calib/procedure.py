@@ -25,6 +25,7 @@ from imud.calib.file import (
     with_noise,
     with_temperature,
 )
+from imud.calib.gsens import GSensitivity, fit_g_sensitivity
 from imud.calib.noise import measured_density, shortfall
 from imud.calib.recording import Recording
 from imud.calib.sanity import check_recording
@@ -126,7 +127,11 @@ def temp_report(est: TempEstimate) -> dict[str, Any]:
 
 
 def _affine_update(
-    est: AffineEstimate, rec: Recording, still: list[StillInterval], report: dict[str, Any]
+    est: AffineEstimate,
+    rec: Recording,
+    still: list[StillInterval],
+    report: dict[str, Any],
+    g_sensitivity: F64 | None = None,
 ) -> Callable[[CalibrationFile, str], CalibrationFile]:
     """Bias and matrix, and the sensor's white noise measured in the still data (for its ROS 2
     covariances) when there is enough of it; the report says which."""
@@ -135,7 +140,7 @@ def _affine_update(
     noise = measured_density(rec, still, sensor, est.matrix)
     if noise is None:
         report["noise"] = {"measured": False, "reason": shortfall(still, rec.rate_hz)}
-        return lambda cf, source: with_affine(cf, est, source)
+        return lambda cf, source: with_affine(cf, est, source, g_sensitivity)
     report["noise"] = {
         "measured": True,
         "density": _floats(noise.density),
@@ -145,7 +150,7 @@ def _affine_update(
     }
 
     def update(cf: CalibrationFile, source: str) -> CalibrationFile:
-        return with_noise(with_affine(cf, est, source), sensor, noise)
+        return with_noise(with_affine(cf, est, source, g_sensitivity), sensor, noise)
 
     return update
 
@@ -284,6 +289,34 @@ def _gravity_corrected(rec: Recording, cf: CalibrationFile | None, notes: list[s
     return replace(rec, accel=(rec.accel - a.bias) @ a.matrix.T)
 
 
+def _without_g_sensitivity(
+    rec: Recording, min_still_s: float, significance: float, notes: list[str]
+) -> tuple[Recording, GSensitivity | None]:
+    """The gyro's g-sensitivity from the still poses (imud/calib/gsens.py) and, when the data ask
+    for it, the recording with G a taken out of every gyro sample, so the bias and matrix fits
+    see the gyro the pipeline will correct."""
+    from imud.calib.still import find_still
+
+    poses = find_still(rec, min_s=min_still_s)
+    if len(poses) < 6:
+        return rec, None
+    gs = fit_g_sensitivity(
+        np.array([p.gyro for p in poses]),
+        np.array([p.gyro_cov for p in poses]),
+        np.array([p.accel for p in poses]),
+        significance,
+    )
+    if gs is None or not gs.included:
+        return rec, gs
+    per_g = np.degrees(np.abs(gs.matrix).max()) * STANDARD_GRAVITY
+    notes.append(
+        f"g-sensitivity found in the still poses (up to {per_g:.3f} deg/s per g; chi2 "
+        f"{gs.chi2_without:.0f} without it, {gs.chi2_with:.0f} with it on {gs.dof_with} dof): "
+        "taken out before the fit, written to the file, applied by the daemon"
+    )
+    return replace(rec, gyro=rec.gyro - rec.accel @ gs.matrix.T), gs
+
+
 def _fit_full(
     rec: Recording,
     full_turns: bool,
@@ -351,6 +384,7 @@ def run_gyro(
 
     notes: list[str] = []
     rec = _gravity_corrected(rec, cf, notes)
+    gsens = None
     if check_still(rec).still:
         est = fit_gyro_bias(rec, latitude_deg, significance)
         still = [interval_stats(rec, 0, rec.n)]
@@ -361,10 +395,20 @@ def run_gyro(
                 "misalignment enter the gravity directions the rotations are checked against "
                 "(calibrate accel first, into the same file)"
             )
+        rec, gsens = _without_g_sensitivity(rec, min_still_s, significance, notes)
         est = _fit_full(rec, full_turns, min_still_s, latitude_deg, significance, acceptance)
         still = find_still(rec, min_s=min_still_s)
     report = affine_report(est)
     report["notes"] = notes
+    if gsens is not None:
+        report["g_sensitivity"] = {
+            "included": gsens.included,
+            "matrix_rad_s_per_m_s2": _floats(gsens.matrix),
+            "chi2_without": gsens.chi2_without,
+            "chi2_with": gsens.chi2_with,
+            "dof_with": gsens.dof_with,
+            "p_value": gsens.p_value,
+        }
     d = est.fit.details
     keys = ("earth_rate_note", "earth", "earth_removed_rad_s", "earth_remaining_rad_s")
     earth = {k: d[k] for k in keys if k in d}
@@ -372,5 +416,6 @@ def run_gyro(
         report["earth_rotation"] = earth
     if d.get("motions"):
         report["motions"] = d["motions"]
-    update = _affine_update(est, rec, still, report)
+    g = None if gsens is None or not gsens.included else gsens.matrix
+    update = _affine_update(est, rec, still, report, g)
     return Outcome("gyro", est.verdict.accepted, list(est.verdict.reasons), report, update)
