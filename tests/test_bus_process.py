@@ -99,7 +99,10 @@ def test_a_bus_process_killed_repeatedly_is_restarted_and_nothing_else_notices(
         pets = [m for m in d.drain_notify() if m == "WATCHDOG=1"]
         for t in threads:
             t.join()
-        st = {x["name"]: x for x in d.status()["devices"]}
+        # status counts over all the process's lives: at least what the subscriber got across
+        # them, once its snapshot has caught up with the batches already delivered
+        got_a = sum(decode(x).count for x in raw["a"])
+        st = _wait(d, lambda s: s["a"]["samples"] >= got_a, timeout=20.0)
         buses = {b["bus"]: b for b in d.status()["buses"]}
     finally:
         code, _ = d.stop()
@@ -119,8 +122,7 @@ def test_a_bus_process_killed_repeatedly_is_restarted_and_nothing_else_notices(
     gaps_a = sum(b.lost_before for b in (decode(x) for x in raw["a"]))
     assert gaps_a > 0  # the outages cost samples, and they are on the wire ...
     assert st["a"]["lost_samples"] >= gaps_a  # ... and in status, which adds up over lives
-    # status counts over all the process's lives: at least what the subscriber got across them
-    assert st["a"]["samples"] >= sum(decode(x).count for x in raw["a"])
+    assert st["a"]["samples"] >= got_a
     assert not any(Path(f"/proc/{k}").exists() for k in kids.values())  # none orphaned
 
 
