@@ -266,3 +266,26 @@ def test_holdout_beside_the_seed(tmp_path: Path) -> None:
     rms = json.loads(r.stdout)["holdout"]["rms_m_s2"]
     assert rms["seed"] is not None
     assert rms["calibrated"] < rms["seed"] < rms["uncalibrated"]
+
+
+def test_an_accelerometer_only_recording(tmp_path: Path) -> None:
+    """A recording without gyro columns (an accelerometer alone): the still poses are found
+    from the accelerometer's own noise floor and the calibration is the same."""
+    full = tmp_path / "poses.csv"
+    make_recording(full)
+    lines = full.read_text().splitlines()
+    comments = [ln for ln in lines if ln.startswith("#")]
+    table = [ln.split(",") for ln in lines if not ln.startswith("#")]
+    keep = [i for i, h in enumerate(table[0]) if h not in ("gx", "gy", "gz")]
+    accel_only = tmp_path / "accel.csv"
+    rows = [",".join(f for i, f in enumerate(row) if i in keep) for row in table]
+    accel_only.write_text("\n".join(comments + rows) + "\n")
+    outs = []
+    for path in (full, accel_only):
+        r = imud("calibrate", "accel", "--from", str(path), "--dry-run", "--json")
+        assert r.returncode == 0, r.stderr
+        outs.append(json.loads(r.stdout))
+    assert len(outs[1]["poses"]) == len(outs[0]["poses"])
+    np.testing.assert_allclose(outs[1]["matrix"], outs[0]["matrix"], atol=2e-4)
+    r = imud("calibrate", "gyro", "--from", str(accel_only), "--dry-run")
+    assert r.returncode == 2 and "gx" in r.stderr and "Traceback" not in r.stderr

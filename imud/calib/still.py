@@ -249,10 +249,14 @@ class Activity:
         hop = max(1, w // WINDOW_HOPS)
         blocks = max(2, w // hop)
         va = _window_var(rec.accel, hop, blocks)
-        vg = _window_var(rec.gyro, hop, blocks)
         a_in, a_out = _thresholds(va)
+        still = _hysteresis(va, a_in, a_out)
+        if np.isnan(rec.gyro).all():  # an accelerometer-only recording: its own floor alone
+            vg = np.zeros_like(va)
+            return cls(hop, hop * blocks, still, va, vg, a_out, math.inf)
+        vg = _window_var(rec.gyro, hop, blocks)
         g_in, g_out = _thresholds(vg)
-        still = _hysteresis(va, a_in, a_out) & _hysteresis(vg, g_in, g_out)
+        still &= _hysteresis(vg, g_in, g_out)
         return cls(hop, hop * blocks, still, va, vg, a_out, g_out)
 
     def covered(self, j0: int, j1: int, n: int) -> tuple[int, int]:

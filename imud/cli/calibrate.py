@@ -152,6 +152,10 @@ def calibrate() -> None:
     device's calibration file is written or updated (the daemon picks it up at once)."""
 
 
+# the columns each procedure reads: the rest of a recording may be absent
+_NEEDS = {"mag": ("mag",), "accel": ("accel",)}
+
+
 class Job:
     """One procedure run: where the data comes from, where the result goes."""
 
@@ -240,7 +244,7 @@ class Job:
                     time_units=self.o["time_units"],
                     rate_hz=self.o["rate_hz"],
                     # a recording holds what it measured: a magnetometer session needs no more
-                    need=("mag",) if self.kind == "mag" else ("accel", "gyro"),
+                    need=_NEEDS.get(self.kind, ("accel", "gyro")),
                     mag_per_ut=self.o.get("mag_counts"),
                 )
             except CsvError as e:
