@@ -263,7 +263,7 @@ def test_holdout_beside_the_seed(tmp_path: Path) -> None:
     make_recording(rec)
     r = imud("calibrate", "accel", "--from", str(rec), "--dry-run", "--holdout", "--json")
     assert r.returncode == 0, r.stderr
-    rms = json.loads(r.stdout)["holdout"]["rms_m_s2"]
+    rms = json.loads(r.stdout)["holdout"]["rms"]
     assert rms["seed"] is not None
     assert rms["calibrated"] < rms["seed"] < rms["uncalibrated"]
 

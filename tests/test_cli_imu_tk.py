@@ -103,10 +103,30 @@ def test_holdout_and_compare(pair: tuple[Path, Path], tmp_path: Path) -> None:
     r = imud("calibrate", "accel", *src, "--dry-run", "--holdout", "--compare", str(full), "--json")
     assert r.returncode == 0, r.stderr
     held = json.loads(r.stdout)["holdout"]
-    rms = held["rms_m_s2"]
+    rms = held["rms"]
     assert held["windows"] == 78  # 39 still poses, each judged in both halves
     assert rms["calibrated"] < rms["uncalibrated"] / 100  # the nominal scale is ~1 % off
     assert rms["seed"] is None and "six faces" in held["notes"][0]  # a hand-held session
     assert rms["compare"] < rms["calibrated"] * 1.2  # a fit that saw them does a little better
     r = imud("calibrate", "accel", *src, "--dry-run", "--compare", str(acc))
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+
+
+def test_gyro_holdout_on_hand_turned_rotations(pair: tuple[Path, Path], tmp_path: Path) -> None:
+    """Each half of the recording's rotations judges the other half's fit: the gravity direction
+    each held-out rotation carries, against the uncalibrated gyro and a bias-only correction."""
+    acc, gyr = pair
+    out = tmp_path / "x.cal.toml"
+    src = ["--from", str(acc), "--gyro-from", str(gyr), *COUNTS, "--out", str(out)]
+    assert imud("calibrate", "accel", *src, "--gravity", "9.81744").returncode == 0
+    r = imud("calibrate", "gyro", *src, "--holdout", "--json")
+    assert r.returncode == 0, r.stderr
+    held = json.loads(r.stdout)["holdout"]
+    rms = held["rms"]
+    assert held["unit"] == "deg" and held["windows"] == 38  # 39 poses, every rotation once
+    assert rms["calibrated"] < rms["seed"] < rms["uncalibrated"]
+    assert rms["calibrated"] < 0.5  # degrees, on rotations the fit did not see
+    r = imud("calibrate", "gyro", *src, "--dry-run", "--compare", str(out), "--json")
+    assert r.returncode == 0, r.stderr
+    rms = json.loads(r.stdout)["holdout"]["rms"]
+    assert rms["compare"] < rms["calibrated"]  # the written file saw every rotation

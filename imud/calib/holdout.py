@@ -12,8 +12,9 @@ whatever that noise is.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -29,15 +30,17 @@ Transform = Callable[[F64], F64]  # (n, 3) readings -> (n, 3) corrected
 
 @dataclass
 class HoldoutReport:
-    """|a| - g RMS (m/s^2) over the held-out windows, by method; None where a method had
-    nothing to say (no six faces for the seed in a fold)."""
+    """RMS over the held-out windows (accelerometer: |a| - g, m/s^2) or rotations (gyro: the
+    gravity direction carried, degrees), by method; None where a method had nothing to say (no
+    six faces for the seed in a fold). `windows`: how many were judged."""
 
     windows: int
+    unit: str = "m/s^2"
     rms: dict[str, float | None] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, object]:
-        return {"windows": self.windows, "rms_m_s2": self.rms, "notes": self.notes}
+        return {"windows": self.windows, "unit": self.unit, "rms": self.rms, "notes": self.notes}
 
 
 def _halves(poses: list[StillInterval]) -> tuple[list[int], list[int], list[int]]:
@@ -104,4 +107,96 @@ def accel_holdout(
     if seed_missing:
         report.rms["seed"] = None
         report.notes.append("the seed's six-face method needs all six faces in each half")
+    return report
+
+
+def _carried_error(
+    rec: Recording, before: StillInterval, after: StillInterval, rate: Transform
+) -> float:
+    """Degrees between the gravity direction `rate` (corrected gyro of samples, given their
+    corrected specific force) carries over the rotation from `before` to `after`, and the one
+    the accelerometer sees in `after`."""
+    from imud import rotations as so3
+
+    sel = np.arange(before.end - 1, after.start)
+    dt = (rec.t_ns[sel + 1] - rec.t_ns[sel]).astype(np.float64) * 1e-9
+    w = rate(np.concatenate([rec.gyro[sel], rec.accel[sel]], axis=1))
+    e, _ = so3.exp_and_jr(w * dt[:, None])
+    turn = so3.cumulative_product(e)[-1]
+    u0 = before.accel / np.linalg.norm(before.accel)
+    u1 = after.accel / np.linalg.norm(after.accel)
+    cos = float(np.clip((turn.T @ u0) @ u1, -1.0, 1.0))
+    return float(np.degrees(np.arccos(cos)))
+
+
+def gyro_holdout(
+    rec: Recording,
+    min_still_s: float,
+    full_turns: bool,
+    latitude_deg: float | None,
+    acceptance: Acceptance | None,
+    compare: Transform | None = None,
+) -> HoldoutReport:
+    """The recording's rotations split in time (the first half of its still poses and the
+    rotations between them, and the second): each half's calibration, fitted as `imud calibrate
+    gyro` fits it (g-sensitivity included when found), judged on the other half's rotations by
+    the gravity direction it carries across each, in degrees; beside the uncalibrated gyro and
+    the seed's bias-only correction (the still poses' mean gyro, no matrix). `rec`'s
+    accelerometer must already be calibrated. `compare`: (N, 6) [gyro, specific force] -> rad/s."""
+    from imud.calib.gsens import fit_g_sensitivity
+    from imud.calib.gyro import fit_gyro_full
+    from imud.calib.still import find_still
+
+    poses = find_still(rec, min_s=min_still_s)
+    if len(poses) < 8:
+        raise CalibrationRefused(
+            f"--holdout: {len(poses)} still poses; splitting the rotations between them in two "
+            "needs at least 8 (four rotations a half)"
+        )
+    half = len(poses) // 2
+    folds = [(poses[: half + 1], poses[half:]), (poses[half:], poses[: half + 1])]
+    errors: dict[str, list[float]] = {"calibrated": [], "uncalibrated": [], "seed": []}
+    if compare is not None:
+        errors["compare"] = []
+    report = HoldoutReport(windows=0, unit="deg")
+    for fit_poses, judge_poses in folds:
+        gs = fit_g_sensitivity(
+            np.array([p.gyro for p in fit_poses]),
+            np.array([p.gyro_cov for p in fit_poses]),
+            np.array([p.accel for p in fit_poses]),
+        )
+        g = gs.matrix if gs is not None and gs.included else np.zeros((3, 3))
+        fitted = rec if not g.any() else replace(rec, gyro=rec.gyro - rec.accel @ g.T)
+        try:
+            est = fit_gyro_full(
+                fitted, fit_poses, None, full_turns, latitude_deg=latitude_deg,
+                acceptance=acceptance,
+            )  # fmt: skip
+        except CalibrationRefused as e:
+            raise CalibrationRefused(f"--holdout: half of the rotations are too few: {e}") from None
+        seed_bias = np.mean([p.gyro for p in fit_poses], axis=0)
+
+        def calibrated(x: F64, c: F64 = est.matrix, b: F64 = est.bias, gm: F64 = g) -> F64:
+            out: F64 = (x[:, :3] - b - x[:, 3:] @ gm.T) @ c.T
+            return out
+
+        def seeded(x: F64, b: F64 = seed_bias) -> F64:
+            out: F64 = x[:, :3] - b
+            return out
+
+        methods: dict[str, Transform] = {
+            "calibrated": calibrated,
+            "uncalibrated": lambda x: x[:, :3],
+            "seed": seeded,
+        }
+        if compare is not None:
+            methods["compare"] = compare
+        for before, after in itertools.pairwise(judge_poses):
+            if after.start <= before.end - 1:
+                continue
+            report.windows += 1
+            for name, rate in methods.items():
+                errors[name].append(_carried_error(rec, before, after, rate))
+    for name, errs in errors.items():
+        report.rms[name] = float(np.sqrt(np.mean(np.square(errs)))) if errs else None
     return report

@@ -289,6 +289,20 @@ def _gravity_corrected(rec: Recording, cf: CalibrationFile | None, notes: list[s
     return replace(rec, accel=(rec.accel - a.bias) @ a.matrix.T)
 
 
+def _gyro_rate(cf: CalibrationFile | None) -> Callable[[F64], F64] | None:
+    """A calibration file's gyro correction as (N, 6) [raw gyro, specific force] -> rad/s."""
+    if cf is None or cf.gyro is None:
+        return None
+    m = sensor_model(cf.gyro)
+    g = np.zeros((3, 3)) if m.g_sensitivity is None else m.g_sensitivity
+
+    def rate(x: F64) -> F64:
+        out: F64 = (x[:, :3] - m.bias - x[:, 3:] @ g.T) @ m.matrix.T
+        return out
+
+    return rate
+
+
 def _without_g_sensitivity(
     rec: Recording, min_still_s: float, significance: float, notes: list[str]
 ) -> tuple[Recording, GSensitivity | None]:
@@ -372,8 +386,12 @@ def run_gyro(
     latitude_deg: float | None = None,
     significance: float = 0.01,
     acceptance: Acceptance | None = None,
+    holdout: bool = False,
+    compare: CalibrationFile | None = None,
 ) -> Outcome:
-    """A still recording gives the bias; one with rotations between still poses gives the bias
+    """`holdout`: also judge the fit on rotations it did not see (imud/calib/holdout.py),
+    beside the uncalibrated gyro, the seed's bias-only correction and `compare`'s gyro table.
+    A still recording gives the bias; one with rotations between still poses gives the bias
     (from the poses) and the full matrix. The file's accelerometer calibration, when there is
     one, corrects the gravity directions first, so the gyro lands in the calibrated frame.
     With the latitude, Earth's rotation is modelled (imud/calib/gyro.py)."""
@@ -384,6 +402,7 @@ def run_gyro(
 
     notes: list[str] = []
     rec = _gravity_corrected(rec, cf, notes)
+    original = rec  # the accelerometer corrected, the gyro as recorded
     gsens = None
     if check_still(rec).still:
         est = fit_gyro_bias(rec, latitude_deg, significance)
@@ -417,5 +436,11 @@ def run_gyro(
     if d.get("motions"):
         report["motions"] = d["motions"]
     g = None if gsens is None or not gsens.included else gsens.matrix
+    if (holdout or compare is not None) and d.get("motions"):
+        from imud.calib.holdout import gyro_holdout
+
+        report["holdout"] = gyro_holdout(
+            original, min_still_s, full_turns, latitude_deg, acceptance, _gyro_rate(compare)
+        ).to_json()
     update = _affine_update(est, rec, still, report, g)
     return Outcome("gyro", est.verdict.accepted, list(est.verdict.reasons), report, update)

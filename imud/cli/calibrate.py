@@ -361,7 +361,7 @@ def _plot(kind: str, outcome: Any, path: Path, as_json: bool) -> None:
     draw(kind, outcome, path)
 
 
-def _compare_file(path: str | None, as_json: bool) -> Any:
+def _compare_file(path: str | None, as_json: bool, sensor: str = "accel") -> Any:
     """The calibration file --compare names, read (a bad one is a usage error, said)."""
     if path is None:
         return None
@@ -371,8 +371,8 @@ def _compare_file(path: str | None, as_json: bool) -> Any:
         cf = read_calibration(Path(path))
     except CalibrationError as e:
         _fail(str(e), EXIT_USAGE, as_json)
-    if cf.accel is None:
-        _fail(f"--compare {path}: the file has no [accel] table to compare", EXIT_USAGE, as_json)
+    if cf.sensor(sensor) is None:
+        _fail(f"--compare {path}: the file has no [{sensor}] table to compare", EXIT_USAGE, as_json)
     return cf
 
 
@@ -551,6 +551,20 @@ def accel(
     help="the model error accepted on each rotation's gravity direction beyond the noise, "
     "degrees (default 1)",
 )
+@click.option(
+    "--holdout",
+    is_flag=True,
+    help="also judge the fit on rotations it did not see (the recording's two halves, each "
+    "judging the other's fit): the gravity direction each carries, in degrees, beside the "
+    "uncalibrated gyro and the seed's bias-only correction",
+)
+@click.option(
+    "--compare",
+    "compare_path",
+    type=click.Path(dir_okay=False, exists=True),
+    help="a calibration file (imud's) whose gyro is judged on the same rotations; implies "
+    "--holdout",
+)
 def gyro(
     full_turns: bool,
     min_still: float,
@@ -558,6 +572,8 @@ def gyro(
     significance: float,
     strict: bool,
     tolerance_deg: float | None,
+    holdout: bool,
+    compare_path: str | None,
     **opts: Any,
 ) -> None:
     """Gyro bias from still data (its standard error from the data's own noise); with rotations
@@ -581,7 +597,10 @@ def gyro(
 
         tolerance = None if tolerance_deg is None else math.radians(tolerance_deg)
         acceptance = Acceptance(strict, significance, tolerance)
-        outcome = run_gyro(rec, full_turns, cf, min_still, latitude, significance, acceptance)
+        compare = _compare_file(compare_path, job.as_json, "gyro")
+        outcome = run_gyro(
+            rec, full_turns, cf, min_still, latitude, significance, acceptance, holdout, compare
+        )
     except CalibrationRefused as e:
         _refused(e, job.as_json)
     job.finish(outcome, None, notes, rec.source)

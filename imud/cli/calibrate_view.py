@@ -72,11 +72,14 @@ def show(report: dict[str, Any], console: Console | None = None) -> None:
         if held:
             names = {"calibrated": "this calibration", "uncalibrated": "uncalibrated",
                      "seed": "seed six-face", "compare": "--compare file"}  # fmt: skip
-            parts = [f"{names.get(k, k)} {v * 1e3:.3f}" for k, v in held["rms_m_s2"].items() if v]
-            con.print(
-                f"  held out ({held['windows']} still windows, |a| - g RMS, mm/s^2): "
-                + ", ".join(parts)
-            )
+            parts = [f"{names.get(k, k)} {v * 1e3:.3f}" for k, v in held["rms"].items() if v]
+            if sensor == "gyro":
+                names["seed"] = "seed bias-only"
+                parts = [f"{names.get(k, k)} {v:.3f}" for k, v in held["rms"].items() if v]
+                what = f"{held['windows']} rotations, gravity carried, RMS deg"
+            else:
+                what = f"{held['windows']} still windows, |a| - g RMS, mm/s^2"
+            con.print(f"  held out ({what}): " + ", ".join(parts))
             for note in held.get("notes", []):
                 con.print(f"    {note}")
         seed = r.get("seed_up_down")
