@@ -126,6 +126,8 @@ def test_gyro_holdout_on_hand_turned_rotations(pair: tuple[Path, Path], tmp_path
     assert held["unit"] == "deg" and held["windows"] == 38  # 39 poses, every rotation once
     assert rms["calibrated"] < rms["seed"] < rms["uncalibrated"]
     assert rms["calibrated"] < 0.5  # degrees, on rotations the fit did not see
+    rest = held["at_rest_deg_h"]  # the held-out poses' corrected rate: their bias left
+    assert rest["calibrated"] < rest["seed"] < rest["uncalibrated"]
     r = imud("calibrate", "gyro", *src, "--dry-run", "--compare", str(out), "--json")
     assert r.returncode == 0, r.stderr
     rms = json.loads(r.stdout)["holdout"]["rms"]

@@ -38,9 +38,15 @@ class HoldoutReport:
     unit: str = "m/s^2"
     rms: dict[str, float | None] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    at_rest: dict[str, float | None] | None = None  # gyro: RMS |mean rate| in held-out poses
 
     def to_json(self) -> dict[str, object]:
-        return {"windows": self.windows, "unit": self.unit, "rms": self.rms, "notes": self.notes}
+        out: dict[str, object] = {
+            "windows": self.windows, "unit": self.unit, "rms": self.rms, "notes": self.notes
+        }  # fmt: skip
+        if self.at_rest is not None:
+            out["at_rest_deg_h"] = self.at_rest
+        return out
 
 
 def _halves(poses: list[StillInterval]) -> tuple[list[int], list[int], list[int]]:
@@ -158,6 +164,7 @@ def gyro_holdout(
     errors: dict[str, list[float]] = {"calibrated": [], "uncalibrated": [], "seed": []}
     if compare is not None:
         errors["compare"] = []
+    rest: dict[str, list[float]] = {k: [] for k in errors}
     report = HoldoutReport(windows=0, unit="deg")
     for fit_poses, judge_poses in folds:
         gs = fit_g_sensitivity(
@@ -197,6 +204,14 @@ def gyro_holdout(
             report.windows += 1
             for name, rate in methods.items():
                 errors[name].append(_carried_error(rec, before, after, rate))
+        # at rest: a held-out pose's corrected mean rate (Earth's 15 deg/h at most, and noise)
+        for p in judge_poses:
+            x = np.concatenate([p.gyro, p.accel])[None, :]
+            for name, rate in methods.items():
+                rest[name].append(float(np.linalg.norm(rate(x)[0])) * 180 / np.pi * 3600)
     for name, errs in errors.items():
         report.rms[name] = float(np.sqrt(np.mean(np.square(errs)))) if errs else None
+    report.at_rest = {
+        name: float(np.sqrt(np.mean(np.square(v)))) if v else None for name, v in rest.items()
+    }
     return report

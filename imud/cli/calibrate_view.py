@@ -80,6 +80,12 @@ def show(report: dict[str, Any], console: Console | None = None) -> None:
             else:
                 what = f"{held['windows']} still windows, |a| - g RMS, mm/s^2"
             con.print(f"  held out ({what}): " + ", ".join(parts))
+            rest = held.get("at_rest_deg_h")
+            if rest:
+                still = [f"{names.get(k, k)} {v:.1f}" for k, v in rest.items() if v is not None]
+                con.print(
+                    "    at rest (|rate| in the held-out poses, RMS deg/h): " + ", ".join(still)
+                )
             for note in held.get("notes", []):
                 con.print(f"    {note}")
         seed = r.get("seed_up_down")
