@@ -289,3 +289,31 @@ def test_an_accelerometer_only_recording(tmp_path: Path) -> None:
     np.testing.assert_allclose(outs[1]["matrix"], outs[0]["matrix"], atol=2e-4)
     r = imud("calibrate", "gyro", "--from", str(accel_only), "--dry-run")
     assert r.returncode == 2 and "gx" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_a_shot_list_one_reading_a_pose(tmp_path: Path) -> None:
+    """ax, ay, az (and mx, my, mz) and no time: each row a still pose's reading, as a tool that
+    logs one reading a button press writes. The fit takes its noise from the residuals."""
+    rng = np.random.default_rng(12)
+    a = sensor_matrix()
+    g = normal_gravity(45.0, 100.0)
+    faces = np.vstack([np.eye(3), -np.eye(3)])
+    corners = np.array([[1, 1, 1], [-1, 1, 1], [1, -1, 1], [1, 1, -1], [-1, -1, 1], [1, -1, -1]])
+    dirs = np.vstack([faces, corners / np.sqrt(3.0)])
+    readings = (dirs * g + B0) @ a.T + rng.standard_normal(dirs.shape) * 2e-3
+    path = tmp_path / "shots.csv"
+    mag = rng.standard_normal(dirs.shape) * 40.0
+    rows = [",".join(f"{float(v)!r}" for v in (*r, *m)) for r, m in zip(readings, mag, strict=True)]
+    path.write_text("ax,ay,az,mx,my,mz\n" + "\n".join(rows) + "\n")
+    src = ["--from", str(path), "--shots", "--mag-units", "uT"]
+    r = imud(
+        "calibrate", "accel", *src, "--dry-run", "--json", "--latitude", "45", "--height", "100"
+    )
+    assert r.returncode == 0, r.stdout + r.stderr
+    out = json.loads(r.stdout)
+    want_c, want_b = truth_calibration(a)
+    np.testing.assert_allclose(out["matrix"], want_c, atol=2e-3)
+    np.testing.assert_allclose(out["bias"], want_b, atol=5e-3)
+    assert any("shot list" in x for x in out["reasons"])
+    r = imud("calibrate", "accel", "--from", str(path), "--dry-run")  # not said: a stream
+    assert r.returncode in (2, 3) and "Traceback" not in r.stderr

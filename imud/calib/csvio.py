@@ -577,15 +577,18 @@ def read_csv(
     rate_hz: float | None = None,
     need: tuple[str, ...] = ("accel", "gyro"),
     mag_per_ut: float | None = None,
+    untimed_rate_hz: float | None = None,
 ) -> Recording:
     """Read a recording (docs/recording-csv.md) into SI units.
 
     need: the sensors whose columns must be there ("accel", "gyro", "mag"): a recording holds
     what it measured, so a magnetometer session needs no accelerometer; a sensor not needed and
     not in the file reads as NaN (never as a value). mag_per_ut: the magnetometer columns are
-    raw counts, this many a microtesla. Lines before the header of the form `name,number` are
-    the file's preamble (a tool's `Fs,50.00`): `Fs`, `rate` or `sample_rate` gives the rate of a
-    file with neither a time column nor a sample counter, each row then one sample.
+    raw counts, this many a microtesla. untimed_rate_hz: the rate of rows with no time column,
+    counter, --rate or preamble (a shot list's rows need none). Lines before the header of the
+    form `name,number` are the file's preamble (a tool's `Fs,50.00`): `Fs`, `rate` or
+    `sample_rate` gives the rate of a file with neither a time column nor a sample counter,
+    each row then one sample.
 
     accel_units "g" multiplies by `gravity` (pass the local g the file's tool used, if it said);
     gyro_units "dps" converts deg/s to rad/s; mag_units "uT" converts to tesla. Other tools'
@@ -627,7 +630,7 @@ def read_csv(
         preamble[item[0]] = item[1]  # `Fs,50.00` above the header: the tool's own notes
         h, rows = int(rows[0]), rows[1:]
         header_text = buf[lines.start[h] : lines.stop[h]].decode("utf-8", "replace")
-    stated = next((v for k, v in preamble.items() if k in _RATE_NAMES), None)
+    stated = next((v for k, v in preamble.items() if k in _RATE_NAMES), untimed_rate_hz)
     commented = _commented_header(buf, lines, h, header_text)
     if commented is not None:  # EuRoC style: "#timestamp [ns],w_RS_S_x [rad s^-1],..."
         h, header_text = commented

@@ -29,7 +29,7 @@ from imud.calib.gsens import GSensitivity, fit_g_sensitivity
 from imud.calib.noise import measured_density, shortfall
 from imud.calib.recording import Recording
 from imud.calib.sanity import check_recording
-from imud.calib.still import StillInterval
+from imud.calib.still import CalibrationRefused, StillInterval
 from imud.units import STANDARD_GRAVITY
 
 F64 = npt.NDArray[np.float64]
@@ -167,17 +167,28 @@ def run_accel(
     acceptance: Acceptance | None = None,
     holdout: bool = False,
     compare: CalibrationFile | None = None,
+    shots: bool = False,
 ) -> Outcome:
-    """Raises CalibrationRefused when no estimate can be formed at all. `holdout`: also judge
+    """`shots`: each row of `rec` is one still pose (imud/calib/shots.py).
+    Raises CalibrationRefused when no estimate can be formed at all. `holdout`: also judge
     the method on still windows it was not fitted to (imud/calib/holdout.py), beside the
     uncalibrated data, the seed's method and `compare`'s accelerometer table."""
     from imud.calib.accel import fit_accel
 
-    check_recording(rec, ("accel",))
+    check_recording(rec, ("accel",), min_samples=2 if shots else None)
+    if shots:
+        if holdout or compare is not None:
+            raise CalibrationRefused(
+                "--holdout needs still windows to split, and a shot list has one reading a "
+                "pose: drop --holdout/--compare"
+            )
+        from imud.calib.shots import fit_accel_shots
 
-    res = fit_accel(
-        rec, gravity, model, min_s=min_s, significance=significance, acceptance=acceptance
-    )
+        res = fit_accel_shots(rec, gravity, model, acceptance)
+    else:
+        res = fit_accel(
+            rec, gravity, model, min_s=min_s, significance=significance, acceptance=acceptance
+        )
     est = res.estimate
     report = affine_report(est)
     report["orientations"] = res.orientations
@@ -202,7 +213,7 @@ def run_accel(
         est.verdict.accepted,
         reasons,
         report,
-        _affine_update(est, rec, res.intervals, report),
+        _affine_update(est, rec, [] if shots else res.intervals, report),
         {"poses": report["poses"]},
     )
 

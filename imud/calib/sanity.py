@@ -34,10 +34,13 @@ _MAGNITUDE: dict[str, tuple[float, float, str, str]] = {
 _NAMES = {"accel": "accelerometer", "gyro": "gyroscope", "mag": "magnetometer"}
 
 
-def check_recording(rec: Recording, sensors: Iterable[Sensor]) -> None:
-    """Refuse `rec` for a calibration of `sensors` (the columns it reads) when it cannot be one."""
+def check_recording(
+    rec: Recording, sensors: Iterable[Sensor], min_samples: int | None = None
+) -> None:
+    """Refuse `rec` for a calibration of `sensors` (the columns it reads) when it cannot be one.
+    `min_samples`: fewer is refused (default MIN_SAMPLES; a shot list's rows are poses)."""
     where = rec.source or "the recording"
-    if rec.n < MIN_SAMPLES:
+    if rec.n < (MIN_SAMPLES if min_samples is None else min_samples):
         raise CalibrationRefused(
             f"{where} has {rec.n} sample{'s' if rec.n != 1 else ''}; a calibration needs a "
             "recording of seconds to minutes (see docs/calibration.md for each procedure)"

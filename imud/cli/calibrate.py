@@ -94,6 +94,12 @@ def _source(f: Any) -> Any:
             ),
             click.option("--device", help="live: a device of the running daemon"),
             click.option(
+                "--shots",
+                is_flag=True,
+                help="--from is a shot list: each row one reading of a still pose (accel, mag), "
+                "no time needed",
+            ),
+            click.option(
                 "--out",
                 type=click.Path(dir_okay=False),
                 help="calibration file to write or update (default: the device's "
@@ -246,6 +252,7 @@ class Job:
                     # a recording holds what it measured: a magnetometer session needs no more
                     need=_NEEDS.get(self.kind, ("accel", "gyro")),
                     mag_per_ut=self.o.get("mag_counts"),
+                    untimed_rate_hz=1.0 if self.o.get("shots") else None,  # rows, not time
                 )
             except CsvError as e:
                 _fail(str(e), EXIT_USAGE, self.as_json)
@@ -517,6 +524,7 @@ def accel(
             acceptance=acceptance,
             holdout=holdout,
             compare=compare,
+            shots=bool(opts.get("shots")),
         )
     except CalibrationRefused as e:
         _refused(e, job.as_json)
