@@ -86,3 +86,23 @@ def test_only_the_gyros_table_may_hold_it() -> None:
     assert parse_calibration(ok).gyro is not None
     with pytest.raises(CalibrationError, match=r"\[accel\] g_sensitivity: only the gyro's"):
         parse_calibration({"accel": {"bias": [0.0] * 3, "g_sensitivity": [row, row, row]}})
+
+
+def test_the_bias_carries_gs_uncertainty() -> None:
+    """Poses all within 60 deg of up: the intercept is an extrapolation to zero specific force,
+    far less certain than the poses' pooled mean; its covariance must say so (it is what the
+    file writes as the bias's uncertainty)."""
+    rng = np.random.default_rng(7)
+    n = 14
+    tilt = np.radians(rng.uniform(0, 60, n))
+    az = rng.uniform(0, 2 * np.pi, n)
+    up = np.column_stack([np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az), np.cos(tilt)])
+    force = up * G
+    means = BIAS + force @ K_GA.T + rng.standard_normal((n, 3)) * NOISE
+    covs = np.tile(np.eye(3) * NOISE**2, (n, 1, 1))
+    gs = fit_g_sensitivity(means, covs, force)
+    assert gs is not None and gs.included
+    pooled = NOISE / np.sqrt(n)
+    # the intercept's sigma from the design alone: at least twice the pooled mean's here
+    assert np.all(np.sqrt(np.diag(gs.bias_cov)) > 2 * pooled)
+    assert np.all(np.abs(gs.bias - BIAS) < 4 * np.sqrt(np.diag(gs.bias_cov)))

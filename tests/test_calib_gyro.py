@@ -367,3 +367,34 @@ def test_a_latitude_must_be_one(latitude: float) -> None:
     rec = still_recording(2.0, seed=73)
     with pytest.raises(ValueError, match="between -90 and 90"):
         fit_gyro_bias(rec, latitude_deg=latitude)
+
+
+def test_earth_rotation_is_not_taken_for_g_sensitivity() -> None:
+    """A gyro without g-sensitivity on the turning Earth: the still poses' means differ by Earth's
+    rate seen from each pose (its vertical part along the measured up, exactly what a diagonal G
+    would give). Without the latitude G is kept only beyond Earth's own size; with it, Earth's
+    vertical rate is taken out first: either way none is written, and the calibration is
+    accepted."""
+    from imud.calib.procedure import run_gyro
+
+    kept = 0
+    for seed in range(80, 86):
+        s = earth_session(seed, MOVES, 30.0 * (seed - 80))
+        for latitude in (None, LAT):
+            out = run_gyro(s.rec, False, latitude_deg=latitude)
+            assert out.accepted, (seed, latitude, out.reasons)
+            kept += bool(out.report.get("g_sensitivity", {}).get("included"))
+    assert kept == 0
+
+
+def test_a_real_g_sensitivity_is_kept_with_the_latitude_too() -> None:
+    from imud.calib.procedure import run_gyro
+
+    g_sens = np.radians(np.array([[0.0, 0.05, 0.0], [-0.06, 0.0, 0.02], [0.0, 0.04, 0.03]])) / G
+    s = earth_session(90, MOVES, 10.0, g_sensitivity=g_sens)
+    for latitude in (None, LAT):
+        gs = run_gyro(s.rec, False, latitude_deg=latitude).report["g_sensitivity"]
+        assert gs["included"], (latitude, gs)
+        np.testing.assert_allclose(
+            np.array(gs["matrix_rad_s_per_m_s2"]) @ np.linalg.inv(A_G), g_sens, atol=2e-5
+        )

@@ -314,8 +314,21 @@ def _gyro_rate(cf: CalibrationFile | None) -> Callable[[F64], F64] | None:
     return rate
 
 
+def _bias_estimate(gs: GSensitivity) -> AffineEstimate:
+    """The G fit's intercept as the gyro-bias estimate the full fit holds fixed."""
+    from imud.calib.estimate import Verdict
+    from imud.calib.gyro import BIAS_NAMES
+
+    fit = Fit(tuple(BIAS_NAMES), gs.bias, gs.bias_cov, {}, {})
+    return AffineEstimate("gyro", "gyro-bias", gs.bias, np.eye(3), fit, Verdict(True))
+
+
 def _without_g_sensitivity(
-    rec: Recording, min_still_s: float, significance: float, notes: list[str]
+    rec: Recording,
+    min_still_s: float,
+    significance: float,
+    notes: list[str],
+    latitude_deg: float | None = None,
 ) -> tuple[Recording, GSensitivity | None]:
     """The gyro's g-sensitivity from the still poses (imud/calib/gsens.py) and, when the data ask
     for it, the recording with G a taken out of every gyro sample, so the bias and matrix fits
@@ -330,6 +343,7 @@ def _without_g_sensitivity(
         np.array([p.gyro_cov for p in poses]),
         np.array([p.accel for p in poses]),
         significance,
+        latitude_deg,
     )
     if gs is None or not gs.included:
         return rec, gs
@@ -349,6 +363,7 @@ def _fit_full(
     latitude_deg: float | None,
     significance: float = 0.01,
     acceptance: Acceptance | None = None,
+    bias: AffineEstimate | None = None,
 ) -> AffineEstimate:
     """The gyro's full fit from the rotations between the recording's still poses."""
     from imud.calib.gyro import fit_gyro_full
@@ -358,7 +373,7 @@ def _fit_full(
     return fit_gyro_full(
         rec,
         poses,
-        None,
+        bias,
         full_turns,
         latitude_deg=latitude_deg,
         significance=significance,
@@ -425,8 +440,13 @@ def run_gyro(
                 "misalignment enter the gravity directions the rotations are checked against "
                 "(calibrate accel first, into the same file)"
             )
-        rec, gsens = _without_g_sensitivity(rec, min_still_s, significance, notes)
-        est = _fit_full(rec, full_turns, min_still_s, latitude_deg, significance, acceptance)
+        rec, gsens = _without_g_sensitivity(rec, min_still_s, significance, notes, latitude_deg)
+        # with G, the bias is the G fit's intercept, its covariance G's uncertainty included
+        # (with the latitude the bias is fitted with Earth's rotation instead)
+        bias = None
+        if gsens is not None and gsens.included and latitude_deg is None:
+            bias = _bias_estimate(gsens)
+        est = _fit_full(rec, full_turns, min_still_s, latitude_deg, significance, acceptance, bias)
         still = find_still(rec, min_s=min_still_s)
     report = affine_report(est)
     report["notes"] = notes
