@@ -380,3 +380,11 @@ def test_a_magnetometer_session_holds_only_the_magnetometer(tmp_path: Path) -> N
     with pytest.raises(CsvError, match="missing required columns timestamp_ns"):
         read_csv(path, mag_units="uT", need=("mag",))  # no time and no rate: said
     assert read_csv(path, mag_units="uT", need=("mag",), rate_hz=10.0).rate_hz == 10.0
+
+
+@pytest.mark.parametrize("rate", ["0", "-50", "nan"])
+def test_a_preamble_rate_that_is_no_rate_is_named(rate: str, tmp_path: Path) -> None:
+    path = tmp_path / "mag.csv"
+    path.write_text(f"Fs,{rate}\nmx,my,mz\n20,-5,40\n21,-6,41\n")
+    with pytest.raises(CsvError, match=r"mag.csv:1: the preamble's rate .* is not a positive"):
+        read_csv(path, mag_units="uT", need=("mag",))

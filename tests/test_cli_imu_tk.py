@@ -107,7 +107,7 @@ def test_holdout_and_compare(pair: tuple[Path, Path], tmp_path: Path) -> None:
     assert held["windows"] == 78  # 39 still poses, each judged in both halves
     assert rms["calibrated"] < rms["uncalibrated"] / 100  # the nominal scale is ~1 % off
     assert rms["seed"] is None and "six faces" in held["notes"][0]  # a hand-held session
-    assert rms["compare"] < rms["calibrated"] * 1.2  # a fit that saw them does a little better
+    assert rms["compare"] <= rms["calibrated"]  # a fit that saw them does at least as well
     r = imud("calibrate", "accel", *src, "--dry-run", "--compare", str(acc))
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
 
@@ -123,7 +123,8 @@ def test_gyro_holdout_on_hand_turned_rotations(pair: tuple[Path, Path], tmp_path
     assert r.returncode == 0, r.stderr
     held = json.loads(r.stdout)["holdout"]
     rms = held["rms"]
-    assert held["unit"] == "deg" and held["windows"] == 38  # 39 poses, every rotation once
+    # 39 poses in halves of 19 and 20: every rotation but the one between the halves, once
+    assert held["unit"] == "deg" and held["windows"] == 37
     assert rms["calibrated"] < rms["seed"] < rms["uncalibrated"]
     assert rms["calibrated"] < 0.5  # degrees, on rotations the fit did not see
     rest = held["at_rest_deg_h"]  # the held-out poses' corrected rate: their bias left

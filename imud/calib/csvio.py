@@ -628,6 +628,13 @@ def read_csv(
     preamble: dict[str, float] = {}
     while rows.size and (item := _preamble_item(header_text)) is not None:
         preamble[item[0]] = item[1]  # `Fs,50.00` above the header: the tool's own notes
+        if item[0] in _RATE_NAMES and not (math.isfinite(item[1]) and item[1] > 0):
+            raise CsvError(
+                path,
+                f"the preamble's rate {item[1]!r} is not a positive number of Hz: fix the line, "
+                "or give --rate",
+                h + 1,
+            )
         h, rows = int(rows[0]), rows[1:]
         header_text = buf[lines.start[h] : lines.stop[h]].decode("utf-8", "replace")
     stated = next((v for k, v in preamble.items() if k in _RATE_NAMES), untimed_rate_hz)

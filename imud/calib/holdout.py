@@ -25,6 +25,7 @@ from imud.calib.recording import Recording
 from imud.calib.still import CalibrationRefused, StillInterval, interval_stats
 
 F64 = npt.NDArray[np.float64]
+MIN_GYRO_POSES = 12  # two halves of at least five rotations, the full fit's least
 Transform = Callable[[F64], F64]  # (n, 3) readings -> (n, 3) corrected
 
 
@@ -154,13 +155,16 @@ def gyro_holdout(
     from imud.calib.still import find_still
 
     poses = find_still(rec, min_s=min_still_s)
-    if len(poses) < 8:
+    if len(poses) < MIN_GYRO_POSES:
         raise CalibrationRefused(
             f"--holdout: {len(poses)} still poses; splitting the rotations between them in two "
-            "needs at least 8 (four rotations a half)"
+            f"halves a fit each needs at least {MIN_GYRO_POSES} (five rotations a half)"
         )
     half = len(poses) // 2
-    folds = [(poses[: half + 1], poses[half:]), (poses[half:], poses[: half + 1])]
+    # disjoint halves: the rotation between them is judged by neither fit, and no pose is seen
+    # by both
+    folds = [(poses[:half], poses[half:]), (poses[half:], poses[:half])]
+    acceptance = acceptance or Acceptance()
     errors: dict[str, list[float]] = {"calibrated": [], "uncalibrated": [], "seed": []}
     if compare is not None:
         errors["compare"] = []
@@ -171,6 +175,8 @@ def gyro_holdout(
             np.array([p.gyro for p in fit_poses]),
             np.array([p.gyro_cov for p in fit_poses]),
             np.array([p.accel for p in fit_poses]),
+            acceptance.significance,
+            latitude_deg,
         )
         g = gs.matrix if gs is not None and gs.included else np.zeros((3, 3))
         fitted = rec if not g.any() else replace(rec, gyro=rec.gyro - rec.accel @ g.T)

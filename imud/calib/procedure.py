@@ -204,9 +204,12 @@ def run_accel(
         if table is not None:
             m = sensor_model(table)
             transform = lambda x: (x - m.bias) @ m.matrix.T  # noqa: E731
-        report["holdout"] = accel_holdout(
-            rec, res.intervals, gravity, model, acceptance, transform
-        ).to_json()
+        try:
+            report["holdout"] = accel_holdout(
+                rec, res.intervals, gravity, model, acceptance, transform
+            ).to_json()
+        except CalibrationRefused as e:  # the evaluation cannot be made; the fit stands
+            report["holdout"] = {"error": str(e)}
     reasons = [*res.dropped, *est.verdict.reasons]
     return Outcome(
         "accel",
@@ -470,8 +473,11 @@ def run_gyro(
     if (holdout or compare is not None) and d.get("motions"):
         from imud.calib.holdout import gyro_holdout
 
-        report["holdout"] = gyro_holdout(
-            original, min_still_s, full_turns, latitude_deg, acceptance, _gyro_rate(compare)
-        ).to_json()
+        try:
+            report["holdout"] = gyro_holdout(
+                original, min_still_s, full_turns, latitude_deg, acceptance, _gyro_rate(compare)
+            ).to_json()
+        except CalibrationRefused as e:  # the evaluation cannot be made; the fit stands
+            report["holdout"] = {"error": str(e)}
     update = _affine_update(est, rec, still, report, g)
     return Outcome("gyro", est.verdict.accepted, list(est.verdict.reasons), report, update)

@@ -69,7 +69,9 @@ def show(report: dict[str, Any], console: Console | None = None) -> None:
         if res:
             con.print("  residuals: " + ", ".join(f"{k} {_fmt(v)}" for k, v in res.items()))
         held = r.get("holdout")
-        if held:
+        if held and "error" in held:
+            con.print(f"  held out: not made: {held['error']}")
+        elif held:
             names = {"calibrated": "this calibration", "uncalibrated": "uncalibrated",
                      "seed": "seed six-face", "compare": "--compare file"}  # fmt: skip
             parts = [f"{names.get(k, k)} {v * 1e3:.3f}" for k, v in held["rms"].items() if v]
