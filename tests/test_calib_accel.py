@@ -232,7 +232,7 @@ def test_axes_model_strict_rejects_poses_off_their_faces() -> None:
 
 
 def test_axes_model_takes_a_pose_a_little_off_and_refuses_one_far_off() -> None:
-    """By default the pose error is a model error within a tolerance (1 deg, 17.5 mg): the same
+    """By default the pose error is a model error within a tolerance (17.5 mg per axis): the same
     2 deg off pose passes with its floor reported, 8 deg does not."""
     little = fit_accel_intervals(
         pose_means(tilted_faces(2.0), np.random.default_rng(5)), G, model="axes"

@@ -18,6 +18,11 @@ s is reported in physical units, the parameters' covariance is recomputed with i
 uncertainty then includes the model error), and the calibration is accepted when s is within a
 tolerance the user can set, with a default per sensor named in the output. `--strict` keeps the
 pure noise test for a lab set-up (a precision rig, a thermally settled sensor).
+
+What a tolerance bounds: s is the model error on one component of a residual. The gravity-norm
+accelerometer fit has one a pose (the norm); the six-face fit three (a pose's misfit vector, up to
+sqrt(3) s: about 1.7 deg of pose error at the 17.5 mg default); the gyro's rotations two (the
+carried gravity direction's error, up to sqrt(2) s); the magnetometer one (the field's norm).
 """
 
 from __future__ import annotations
@@ -26,12 +31,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from imud.calib.stats import chi2_sf
+from imud.calib.still import CalibrationRefused
 
 # default tolerances on the model-error floor, m/s^2 (accelerometer); why each in the docstring
 # of `Acceptance.tolerance_for`
 MG = 9.80665e-3
 ACCEL_FULL_TOLERANCE = 5.0 * MG
-ACCEL_AXES_TOLERANCE = 17.5 * MG  # ~1 deg of pose error at 1 g
+ACCEL_AXES_TOLERANCE = 17.5 * MG  # per axis: ~1 deg a component, up to ~1.7 deg a pose
 MAG_TOLERANCE_FRACTION = 0.03  # of the field: about 1.7 deg of heading error
 
 
@@ -64,8 +70,10 @@ def model_error_floor(
     lo, hi = 0.0, max(scale, 1e-300) ** 2
     while chi2_at(hi) > dof:  # the bound doubles until it brackets the root
         hi *= 4.0
-        if hi > 1e300:
-            return float("inf")
+        if not hi < 1e300:  # no finite model error explains them: residuals that are no numbers
+            raise CalibrationRefused(
+                "the residuals are not finite numbers: the fit diverged; check the recording"
+            )
     for _ in range(200):
         mid = 0.5 * (lo + hi)
         if chi2_at(mid) > dof:

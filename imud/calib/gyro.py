@@ -619,8 +619,9 @@ def _solve(
     return _Solved(x, lin, iterations)
 
 
-# the model error accepted on each rotation by default: 1 deg, what a pose placed by hand and
-# a turn of a few seconds at 100 Hz leave (a scale error of 0.5 % over a quarter turn is 0.45 deg)
+# the model error accepted by default on each component of a rotation's gravity-direction
+# residual: 1 deg (a direction error up to 1.4 deg), what a pose placed by hand and a turn of a
+# few seconds at 100 Hz leave (a scale error of 0.5 % over a quarter turn is 0.45 deg)
 GYRO_ROTATION_TOLERANCE = math.radians(1.0)
 
 
@@ -630,19 +631,22 @@ def _rotation_floor(
     n_mean: int,
     n_par: int,
     significance: float,
+    mean_par: int = 0,
 ) -> float:
     """The rotations' model-error floor, rad: added to each rotation row's variance, it makes
-    the residuals' chi-squared its degrees of freedom."""
+    the rotation rows' chi-squared their degrees of freedom. Only those rows: the still poses'
+    means (with the latitude) have their own test, and a rotation's error cannot explain them.
+    `mean_par`: the parameters the means alone determine (bias and heading)."""
     v = noise(lin)
     n_rot = v.shape[0] - n_mean
-    eye = np.zeros(v.shape[0])
-    eye[:n_rot] = 1.0
-    dof = lin.r.shape[0] - n_par
+    v_rot = v[:n_rot, :n_rot]
+    r_rot = lin.r[:n_rot]
+    dof = n_rot - (n_par - mean_par)
 
     def chi2_at(s2: float) -> float:
-        return float(lin.r @ np.linalg.solve(v + s2 * np.diag(eye), lin.r))
+        return float(r_rot @ np.linalg.solve(v_rot + s2 * np.eye(n_rot), r_rot))
 
-    rms = float(np.sqrt(np.mean(lin.r[:n_rot] ** 2))) if n_rot else 0.0
+    rms = float(np.sqrt(np.mean(r_rot**2))) if n_rot else 0.0
     return model_error_floor(chi2_at, dof, rms, significance)
 
 
@@ -791,7 +795,8 @@ def fit_gyro_full(
     for _ in range(10):
         if acceptance.strict:
             break
-        new = _rotation_floor(measured, lin, n_mean, len(cols), significance)
+        mean_par = 0 if means is None else (4 if free_bias else 1)
+        new = _rotation_floor(measured, lin, n_mean, len(cols), significance, mean_par)
         if abs(new - floor) <= 1e-3 * max(new, 1e-300):
             break
         floor, floor2 = new, new * new

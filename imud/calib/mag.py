@@ -499,6 +499,10 @@ def fit_mag(
     acceptance = acceptance or Acceptance(significance=P_REJECT)
     floor = _floor(m, bias, matrix, field, sigma, residuals, c, acceptance.significance)
     residuals["model_error"] = floor
+    if floor > 0:
+        # the model error in every sample's variance: the per-sample noise is nearly the same
+        # for every sample, so the covariance scales by (noise^2 + s^2) / noise^2
+        covariance = covariance * (1.0 + (floor / residuals["noise"]) ** 2)
     tolerance = acceptance.tolerance_for(MAG_TOLERANCE_FRACTION * field)
     cover = coverage(u)
 

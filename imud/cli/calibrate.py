@@ -458,8 +458,8 @@ def _gravity(job: Job, gravity: float | None, lat: float | None, h: float | None
 @click.option(
     "--tolerance-mg",
     type=click.FloatRange(min=0.0, max=1000.0),
-    help="the model error accepted beyond the noise, mg (default 5 for --model full, 17.5, "
-    "about 1 deg of pose error, for axes)",
+    help="the model error accepted beyond the noise, mg per residual component (default 5 "
+    "for --model full; 17.5 per axis for axes: a pose up to about 1.7 deg off its face)",
 )
 @click.option(
     "--holdout",
@@ -556,8 +556,8 @@ def accel(
 @click.option(
     "--tolerance-deg",
     type=click.FloatRange(min=0.0, max=90.0),
-    help="the model error accepted on each rotation's gravity direction beyond the noise, "
-    "degrees (default 1)",
+    help="the model error accepted beyond the noise on each component of a rotation's carried "
+    "gravity direction, degrees (default 1: a direction error up to 1.4 deg)",
 )
 @click.option(
     "--holdout",
