@@ -398,3 +398,13 @@ def test_a_real_g_sensitivity_is_kept_with_the_latitude_too() -> None:
         np.testing.assert_allclose(
             np.array(gs["matrix_rad_s_per_m_s2"]) @ np.linalg.inv(A_G), g_sens, atol=2e-5
         )
+
+
+def test_a_holdout_that_cannot_be_made_is_said_and_the_fit_stands() -> None:
+    from imud.calib.procedure import run_gyro
+
+    rec = gyro_session(42, MOVES[:8], fs=200.0).rec  # nine poses: enough to fit, not to halve
+    assert len(find_still(rec)) == 9
+    out = run_gyro(rec, False, holdout=True)
+    assert out.accepted, out.reasons
+    assert "needs at least 12" in out.report["holdout"]["unavailable"]

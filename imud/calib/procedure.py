@@ -209,7 +209,7 @@ def run_accel(
                 rec, res.intervals, gravity, model, acceptance, transform
             ).to_json()
         except CalibrationRefused as e:  # the evaluation cannot be made; the fit stands
-            report["holdout"] = {"error": str(e)}
+            report["holdout"] = {"unavailable": str(e)}
     reasons = [*res.dropped, *est.verdict.reasons]
     return Outcome(
         "accel",
@@ -478,6 +478,6 @@ def run_gyro(
                 original, min_still_s, full_turns, latitude_deg, acceptance, _gyro_rate(compare)
             ).to_json()
         except CalibrationRefused as e:  # the evaluation cannot be made; the fit stands
-            report["holdout"] = {"error": str(e)}
+            report["holdout"] = {"unavailable": str(e)}
     update = _affine_update(est, rec, still, report, g)
     return Outcome("gyro", est.verdict.accepted, list(est.verdict.reasons), report, update)

@@ -69,8 +69,8 @@ def show(report: dict[str, Any], console: Console | None = None) -> None:
         if res:
             con.print("  residuals: " + ", ".join(f"{k} {_fmt(v)}" for k, v in res.items()))
         held = r.get("holdout")
-        if held and "error" in held:
-            con.print(f"  held out: not made: {held['error']}")
+        if held and "unavailable" in held:
+            con.print(f"  held out: not made: {held['unavailable']}")
         elif held:
             names = {"calibrated": "this calibration", "uncalibrated": "uncalibrated",
                      "seed": "seed six-face", "compare": "--compare file"}  # fmt: skip
