@@ -148,3 +148,33 @@ def test_the_watcher_loads_changes_and_reports_a_bad_file(tmp_path: Path) -> Non
     st = rig.runner.status().to_json()
     assert st["calibration"] is None and "singular" in st["calibration_error"]
     assert not any(b.flags & FLAG_CALIBRATED for b in rig.batches())  # never garbage
+
+
+def test_the_device_applies_the_gyros_g_sensitivity(tmp_path: Path) -> None:
+    """A file whose gyro has g-sensitivity G: the device's corrected gyro is its raw gyro less
+    the bias and G times the same sample's corrected accelerometer, sample by sample (the raw
+    stream carries the samples before correction)."""
+    k_ga = np.array([[0.0, 2e-3, 0.0], [-1e-3, 0.0, 3e-3], [1e-3, 0.0, -2e-3]])  # rad/s per m/s^2
+    cf = correcting_file()
+    assert cf.gyro is not None
+    rows = tuple(tuple(float(x) for x in r) for r in k_ga)
+    cf = cf.model_copy(update={"gyro": cf.gyro.model_copy(update={"g_sensitivity": rows})})
+    path = tmp_path / "cal.toml"
+    write(path, cf)
+    rig = make_rig(DEVICE, SIM)
+    rig.runner.publish_raw = (raw_out := []).append
+    rig.runner.set_calibration(load_calibration(path, "mpu6050", SIX_AXIS), None)
+    rig.run(0.3)
+    rig.runner.want_raw(True)
+    n0 = len(rig.out)
+    rig.run(0.5)
+    rig.runner.want_raw(False)
+    raw = [decode(b) for b in raw_out]
+    corrected = rig.batches()[n0 : n0 + len(raw)]
+    assert raw and len(raw) == len(corrected)
+    rg = np.concatenate([r.gyro for r in raw]).astype(np.float64)
+    ca = np.concatenate([c.accel for c in corrected]).astype(np.float64)
+    cg = np.concatenate([c.gyro for c in corrected]).astype(np.float64)
+    bias = np.radians(GYRO_BIAS_DPS)
+    np.testing.assert_allclose(cg, rg - bias - ca @ k_ga.T, atol=2e-6)  # float32 on the wire
+    assert np.abs(ca @ k_ga.T).max() > 1e-2  # the term is there to see
