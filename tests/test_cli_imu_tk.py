@@ -133,3 +133,17 @@ def test_gyro_holdout_on_hand_turned_rotations(pair: tuple[Path, Path], tmp_path
     assert r.returncode == 0, r.stderr
     rms = json.loads(r.stdout)["holdout"]["rms"]
     assert rms["compare"] < rms["calibrated"]  # the written file saw every rotation
+
+
+def test_the_format_named_and_a_wrong_name_told(pair: tuple[Path, Path], tmp_path: Path) -> None:
+    acc, gyr = pair
+    src = ["--gyro-from", str(gyr), *COUNTS, "--dry-run"]
+    r = imud("calibrate", "accel", "--from", str(acc), "--format", "imu_tk", *src)
+    assert r.returncode == 0, r.stderr
+    r = imud("calibrate", "accel", "--from", str(acc), "--format", "csv", *src)
+    assert r.returncode == 2 and "give --format imu_tk" in r.stderr, r.stderr
+    csv = tmp_path / "rec.csv"
+    csv.write_text("timestamp_ns,ax,ay,az,gx,gy,gz\n1,0,0,9.8,0,0,0\n2,0,0,9.8,0,0,0\n")
+    r = imud("calibrate", "accel", "--from", str(csv), "--format", "imu_tk", *src)
+    assert r.returncode == 2 and "rec.csv:1: 1 fields; imu_tk's files have four" in r.stderr
+    assert "Traceback" not in r.stderr

@@ -72,6 +72,15 @@ def _source(f: Any) -> Any:
                 "file (t x y z counts; then --gyro-from and --accel-counts/--gyro-counts)",
             ),
             click.option(
+                "--format",
+                "source_format",
+                type=click.Choice(["auto", "csv", "imu_tk"]),
+                default="auto",
+                show_default=True,
+                help="--from's format: a CSV recording, or imu_tk's text files; auto tells them "
+                "by the first line",
+            ),
+            click.option(
                 "--gyro-from",
                 type=click.Path(dir_okay=False, exists=True),
                 help="imu_tk's gyroscope file, the pair of --from's",
@@ -229,8 +238,18 @@ class Job:
         from imud.calib.csvio import CsvError, read_comments, read_csv
         from imud.calib.imutk import is_imu_tk
 
-        if self.o["from_csv"] is not None and is_imu_tk(Path(self.o["from_csv"])):
-            return self._imu_tk(Path(self.o["from_csv"]))
+        fmt = self.o.get("source_format", "auto")
+        if self.o["from_csv"] is not None:
+            looks = is_imu_tk(Path(self.o["from_csv"]))
+            if fmt == "imu_tk" or (fmt == "auto" and looks):
+                return self._imu_tk(Path(self.o["from_csv"]))
+            if fmt == "csv" and looks:
+                _fail(
+                    f"{self.o['from_csv']}: --format csv, but its first line is four numbers "
+                    "and no header, imu_tk's format: give --format imu_tk (or auto)",
+                    EXIT_USAGE,
+                    self.as_json,
+                )
         if self.o.get("gyro_from") is not None:
             _fail(
                 f"--gyro-from goes with imu_tk's files, and {self.o['from_csv']} is not one "
