@@ -126,3 +126,23 @@ def in_process_runners(daemon: Any) -> list[Any]:
         worker = getattr(link.transport, "worker", None)
         out.extend(worker.runners if worker is not None else [])
     return out
+
+
+def native_means(payloads: list[bytes], k: int) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """What a k-sample averaging output should send, from the native stream's batches: for each
+    complete group of seq k*m .. k*m+k-1, keyed by its members' mean stamp (integer ns, floor),
+    the group's mean gyro and mean accelerometer (float64)."""
+    from imud.wire import decode
+
+    batches = [decode(p) for p in payloads]
+    seq = np.concatenate([b.seq for b in batches])
+    stamps = np.concatenate([b.t_ns for b in batches])
+    gyro = np.concatenate([b.gyro for b in batches]).astype(np.float64)
+    accel = np.concatenate([b.accel for b in batches]).astype(np.float64)
+    out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for g in np.unique(seq // k):
+        sel = seq // k == g
+        if sel.sum() == k:
+            mean_t = int(stamps[sel].astype(object).sum() // k)
+            out[mean_t] = (gyro[sel].mean(axis=0), accel[sel].mean(axis=0))
+    return out

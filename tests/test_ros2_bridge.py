@@ -16,8 +16,8 @@ import pytest
 import zenoh
 
 import imud.client as ic
-from imud.wire import decode
 from tests.daemon_fixture import DaemonProc
+from tests.helpers import native_means
 
 pytestmark = pytest.mark.extra  # rosbags (the `dev` extra)
 typesys = pytest.importorskip("rosbags.typesys")
@@ -118,17 +118,7 @@ def test_the_bridge_key_carries_cdr_rosbags_reads_the_native_streams_means(
     t = np.array([m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in msgs])
     assert np.all(np.diff(t) > 0)
     assert np.median(np.diff(t)) == pytest.approx(5e6, rel=0.02)
-    batches = [decode(p) for p in native]
-    seq = np.concatenate([b.seq for b in batches])
-    stamps = np.concatenate([b.t_ns for b in batches])
-    gyro = np.concatenate([b.gyro for b in batches]).astype(np.float64)
-    accel = np.concatenate([b.accel for b in batches]).astype(np.float64)
-    by_group: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    for g in np.unique(seq // 5):
-        sel = seq // 5 == g
-        if sel.sum() == 5:
-            mean_t = int(stamps[sel].astype(object).sum() // 5)
-            by_group[mean_t] = (gyro[sel].mean(axis=0), accel[sel].mean(axis=0))
+    by_group = native_means(native, 5)
     matched = [(m, by_group[int(ts)]) for m, ts in zip(msgs, t, strict=True) if ts in by_group]
     assert len(matched) > 200, (len(matched), len(msgs))
     for m, (g, a) in matched:

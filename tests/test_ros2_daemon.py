@@ -19,9 +19,8 @@ import xxhash
 import zenoh
 
 import imud.client as ic
-from imud.wire import decode
 from tests.daemon_fixture import DaemonProc
-from tests.helpers import free_port
+from tests.helpers import free_port, native_means
 
 IMU_HASH = "RIHS01_7d9a00ff131080897a5ec7e26e315954b8eae3353c3f995c55faf71574000b5b"
 MAG_HASH = "RIHS01_e80f32f56a20486c9923008fc1a1db07bbb273cbbf6a5b3bfa00835ee00e4dff"
@@ -151,19 +150,11 @@ def test_messages_on_rmw_zenohs_key_are_the_native_streams_means(daemon: DaemonP
     assert np.all(np.diff(t) > 0)
     assert np.median(np.diff(t)) == pytest.approx(5e6, rel=0.02)
     # each message is the mean of the native samples with seq 5m..5m+4
-    batches = [decode(p) for p in native]
-    seq = np.concatenate([b.seq for b in batches])
-    stamps = np.concatenate([b.t_ns for b in batches])
-    gyro = np.concatenate([b.gyro for b in batches]).astype(np.float64)
-    by_group: dict[int, np.ndarray] = {}
-    for g in np.unique(seq // 5):
-        m = seq // 5 == g
-        if m.sum() == 5:
-            by_group[int(stamps[m].astype(object).sum() // 5)] = gyro[m].mean(axis=0)
+    by_group = native_means(native, 5)
     matched = [m for m in msgs if m["t_ns"] in by_group]
     assert len(matched) > 300, (len(matched), len(msgs))
     for m in matched:
-        np.testing.assert_allclose(m["gyro"], by_group[m["t_ns"]], rtol=1e-6, atol=1e-9)
+        np.testing.assert_allclose(m["gyro"], by_group[m["t_ns"]][0], rtol=1e-6, atol=1e-9)
 
 
 def test_a_chip_with_an_orientation_and_a_magnetometer_has_imu_data_and_imu_mag(

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from imud.wire import decode
+from tests.helpers import native_means
 
 pytestmark = [
     pytest.mark.extra,  # cyclonedds (the `dds` extra, in `dev`)
@@ -270,17 +270,7 @@ def test_a_dds_reader_receives_the_native_streams_means(received: dict[str, Any]
     assert np.all(np.diff(t) > 0)
     assert np.median(np.diff(t)) == pytest.approx(5e6, rel=0.02)
     # each message is the mean of the native samples with seq 5m..5m+4
-    batches = [decode(base64.b64decode(p)) for p in received["native"]]
-    seq = np.concatenate([b.seq for b in batches])
-    stamps = np.concatenate([b.t_ns for b in batches])
-    gyro = np.concatenate([b.gyro for b in batches]).astype(np.float64)
-    accel = np.concatenate([b.accel for b in batches]).astype(np.float64)
-    by_group: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    for g in np.unique(seq // 5):
-        m = seq // 5 == g
-        if m.sum() == 5:
-            mean_t = int(stamps[m].astype(object).sum() // 5)
-            by_group[mean_t] = (gyro[m].mean(axis=0), accel[m].mean(axis=0))
+    by_group = native_means([base64.b64decode(p) for p in received["native"]], 5)
     matched = [(m, by_group[int(ts)]) for m, ts in zip(msgs, t, strict=True) if ts in by_group]
     assert len(matched) > 300, (len(matched), len(msgs))
     for m, (g, a) in matched:
