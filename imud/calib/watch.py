@@ -97,7 +97,10 @@ class CalibrationWatcher:
             model, error = load_for(d.cfg)
             d.set_calibration(model, error)
             if error is not None:
-                log.error("%s: %s; running uncalibrated", d.cfg.name, error)
+                # a file not written yet is where every device starts (`imud calibrate` writes
+                # it); one that is there and refused is a fault
+                level = logging.WARNING if sig is None else logging.ERROR
+                log.log(level, "%s: %s; running uncalibrated", d.cfg.name, error)
             elif not first:
                 log.info("%s: calibration reloaded from %s", d.cfg.name, path)
 
