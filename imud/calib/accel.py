@@ -489,24 +489,36 @@ def _fit_axes(
         x[:, j, 3 * j : 3 * j + 3] = grav
         x[:, j, 9 + j] = 1.0
     winv = np.linalg.inv(covs)
-    normal = np.einsum("nji,njk,nkl->il", x, winv, x)
-    rhs = np.einsum("nji,njk,nk->i", x, winv, means)
-    theta = np.linalg.solve(normal, rhs)
-    a = theta[:9].reshape(3, 3)
-    b = theta[9:]
-    e = means - np.einsum("nij,j->ni", x, theta)
-    chi2 = float(np.einsum("ni,nij,nj->", e, winv, e))
     dof = 3 * n - 12
 
-    def chi2_at(s2: float) -> float:
-        w = np.linalg.inv(covs + s2 * np.eye(3))
-        return float(np.einsum("ni,nij,nj->", e, w, e))
+    def solve(w: F64) -> tuple[F64, F64]:
+        """theta by weighted least squares with weights w (n, 3, 3), and the misfits."""
+        normal = np.einsum("nji,njk,nkl->il", x, w, x)
+        rhs = np.einsum("nji,njk,nk->i", x, w, means)
+        th: F64 = np.linalg.solve(normal, rhs)
+        return th, means - np.einsum("nij,j->ni", x, th)
 
-    floor = model_error_floor(chi2_at, dof, float(np.sqrt(np.mean(e * e))), significance)
-    # the parameters' covariance with the model error (e.g. poses off their faces) counted in
+    theta, e = solve(winv)
+    floor = 0.0
+    for _ in range(20):
+        # as the 9-parameter fit: the model error (poses off their faces) in every pose's
+        # weight, and the fit redone with it
+        def chi2_at(s2: float, e: F64 = e) -> float:
+            w = np.linalg.inv(covs + s2 * np.eye(3))
+            return float(np.einsum("ni,nij,nj->", e, w, e))
+
+        new = model_error_floor(chi2_at, dof, float(np.sqrt(np.mean(e * e))), significance)
+        if abs(new - floor) <= 1e-3 * max(new, 1e-300):
+            break
+        floor = new
+        theta, e = solve(np.asarray(np.linalg.inv(covs + floor * floor * np.eye(3)), np.float64))
+    a = theta[:9].reshape(3, 3)
+    b = theta[9:]
+    chi2 = float(np.einsum("ni,nij,nj->", e, winv, e))
+    # the parameters' covariance with the model error counted in
     winf = np.linalg.inv(covs + floor * floor * np.eye(3))
     cov_theta = np.linalg.inv(np.einsum("nji,njk,nkl->il", x, winf, x))
-    c: F64 = np.linalg.inv(a)
+    c: F64 = np.asarray(np.linalg.inv(a), dtype=np.float64)
     # d vec(C) = -(C kron C^T) d vec(A) for row-major vec
     jac = np.zeros((12, 12))
     kron = np.asarray(np.kron(c, c.T), dtype=np.float64)
