@@ -104,7 +104,12 @@ def test_the_toy_streams_through_the_daemons_bus_process(
                 if seen and sum(x.count for x in data) > 3000:
                     break
                 assert time.monotonic() < end, dev
-            dev = ic.get_status(s, device="toy0")
+            # the bus process reports status periodically: wait for its snapshot to count the
+            # samples already received, or its counters lag the batches compared with them
+            got_n = sum(x.count for x in data)
+            while (dev := ic.get_status(s, device="toy0"))["samples"] < got_n:
+                assert time.monotonic() < end + 20, dev
+                time.sleep(0.05)
             pid = ic.get_status(s)["buses"][0]["pid"]
     finally:
         code, _ = d.stop()
