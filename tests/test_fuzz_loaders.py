@@ -15,11 +15,13 @@ import tempfile
 import tomllib
 from pathlib import Path
 from typing import Any
+from unittest import mock
 
 import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
+from imud.calib import csvio
 from imud.calib.csvio import CsvError, CsvWriter, read_csv
 from imud.calib.file import (
     CalibrationError,
@@ -31,6 +33,7 @@ from imud.calib.file import (
     parse_calibration,
     to_toml,
 )
+from imud.calib.recording import Recording
 from imud.calib.watch import calibration_problems
 from imud.channels import Channel
 from imud.config import ImudConfig, load_config, parse_config
@@ -374,6 +377,46 @@ def test_csv_of_arbitrary_bytes(data: bytes, options: dict[str, Any]) -> None:
 @given(csv_texts(), OPTIONS)
 def test_csv_of_csv_like_text(data: bytes, options: dict[str, Any]) -> None:
     read_or_csv_error(put("like.csv", data), options)
+
+
+def outcome(path: Path, options: dict[str, Any]) -> tuple[str, ...] | Recording:
+    try:
+        return read_csv(path, **options)
+    except CsvError as e:
+        return (str(e),)
+
+
+@st.composite
+def readable_csv_texts(draw: Any) -> bytes:
+    """Files read_csv accepts, with what a line scan must get right: comments above, between
+    and after rows, blank lines, any line end."""
+    n = draw(st.integers(2, 30))
+    lines = ["# device: d", "timestamp_ns,ax,ay,az,gx,gy,gz"]
+    for i in range(n):
+        if draw(st.integers(0, 4)) == 0:
+            lines.append(draw(st.sampled_from(["", "# a note, with commas,", "   "])))
+        row = f"{1000 + i * 10_000_000},0.1,{i * 0.01:.3f},9.8,0.001,-0.002,{i * 1e-4:.5f}"
+        lines.append(row + draw(st.sampled_from(["", "", " # note"])))
+    end = draw(st.sampled_from(["\n", "\r\n", "\r"]))
+    return (end.join(lines) + draw(st.sampled_from(["", end]))).encode()
+
+
+@fuzz(60)
+@given(st.one_of(csv_texts(), readable_csv_texts()), OPTIONS, st.integers(1, 64))
+def test_csv_scanned_in_pieces_reads_as_whole(
+    data: bytes, options: dict[str, Any], piece: int
+) -> None:
+    """A large file's lines are scanned a piece at a time; pieces of a few bytes (lines cut
+    anywhere, comments and CR line ends) give what the whole file scanned at once gives."""
+    path = put("pieces.csv", data)
+    whole = outcome(path, options)
+    with mock.patch.object(csvio, "_SCAN_BYTES", piece):
+        cut = outcome(path, options)
+    if isinstance(whole, tuple) or isinstance(cut, tuple):
+        assert whole == cut
+        return
+    assert np.array_equal(whole.t_ns, cut.t_ns)
+    assert np.array_equal(whole.accel, cut.accel) and np.array_equal(whole.gyro, cut.gyro)
 
 
 @fuzz(20)

@@ -20,6 +20,7 @@ a unit stated in a name is checked against the options.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import math
 import os
@@ -34,6 +35,7 @@ from typing import Literal, Self
 import numpy as np
 import numpy.typing as npt
 
+from imud.calib import memory
 from imud.calib.recording import Recording
 from imud.channels import SATURATED
 from imud.units import STANDARD_GRAVITY
@@ -59,6 +61,12 @@ ACCEL_RATIO = 3.0  # the median |accel| must lie within g/3 .. 3g (a still or ha
 GYRO_MAX_RAD_S = 35.0  # 2000 deg/s = 34.9 rad/s, the widest range MEMS gyros offer
 MAG_RANGE_T = (1e-6, 1e-3)  # the Earth's 25-65 uT, with room for hard iron up to 1 mT
 TEMP_RANGE_C = (-60.0, 150.0)  # beyond any IMU's operating range
+
+# What reading a row costs beyond its columns' 16 bytes each (the parsed table, then the
+# recording's arrays): the parser's slack. Measured with tracemalloc on a 2,000,000-row
+# recording: reading peaks at 83 bytes a row beyond the file's bytes and its line index (which
+# are freed before a calibration's own still detection and fit, about 50 bytes a row)
+BYTES_PER_ROW = 16
 
 _CHUNK_ROWS = 65536  # rows formatted at once by the writer (bounds its memory)
 
@@ -103,12 +111,43 @@ def _positions(mask: Bool) -> I64:
     return np.flatnonzero(mask).astype(np.int64, copy=False)
 
 
+_SCAN_BYTES = 1 << 24  # bytes scanned at once: bounds the scan's temporaries, whatever the file
+
+
 def _scan(data: npt.NDArray[np.uint8]) -> _Lines:
+    """The lines of `data`, scanned in pieces that each end after a newline (a line never spans
+    two), so the masks the scan builds stay a piece's size."""
+    n = int(data.shape[0])
+    pieces: list[_Lines] = []
+    a = 0
+    while a < n or not pieces:
+        b = min(a + _SCAN_BYTES, n)
+        b = _after_newline(data, b)
+        pieces.append(_scan_piece(data[a:b], a))
+        a = b
+    if len(pieces) == 1:
+        return pieces[0]
+    names = [f.name for f in dataclasses.fields(_Lines)]
+    return _Lines(*(np.concatenate([getattr(p, k) for p in pieces]) for k in names))
+
+
+def _after_newline(data: npt.NDArray[np.uint8], b: int) -> int:
+    """Where the line holding byte b ends (just after its newline), or the end of data."""
+    n, w = int(data.shape[0]), 1 << 12
+    while b < n:
+        nl = np.flatnonzero(data[b : b + w] == ord("\n"))
+        if nl.size:
+            return b + int(nl[0]) + 1
+        b, w = b + w, w * 2
+    return n
+
+
+def _scan_piece(data: npt.NDArray[np.uint8], offset: int) -> _Lines:
     n = int(data.shape[0])
     newlines = _positions(data == ord("\n"))
     start = np.concatenate([np.zeros(1, np.int64), newlines + 1])
     end = np.concatenate([newlines, np.full(1, n, np.int64)])
-    if n == 0 or data[-1] == ord("\n"):  # the file ends with a newline: no line after it
+    if n == 0 or data[-1] == ord("\n"):  # the piece ends with a newline: no line after it
         start, end = start[:-1], end[:-1]
     hashes = _positions(data == ord("#"))
     first_hash = np.append(hashes, n)[np.searchsorted(hashes, start)]
@@ -119,27 +158,31 @@ def _scan(data: npt.NDArray[np.uint8]) -> _Lines:
     blank = np.searchsorted(spaces, stop) - np.searchsorted(spaces, start)
     commas = _positions(data == ord(","))
     n_commas = np.searchsorted(commas, stop) - np.searchsorted(commas, start)
-    return _Lines(start, stop, end, (stop - start) > blank, n_commas.astype(np.int64))
+    return _Lines(start + offset, stop + offset, end + offset, (stop - start) > blank, n_commas)
 
 
-def _data_bytes(buf: bytes, data: npt.NDArray[np.uint8], lines: _Lines, rows: I64) -> bytes:
+def _data_rows(
+    buf: bytes, data: npt.NDArray[np.uint8], lines: _Lines, rows: I64
+) -> tuple[bytes, I64]:
     """The data lines alone, comments and blank lines cut out, so that row k of np.loadtxt is
-    data line k (and its line number is known)."""
-    if rows.size == 0:
-        return b""
+    data line k (and its line number is known); and where each row begins in them. The usual
+    file (nothing but data after the header) is returned as it is, not copied."""
     first = int(lines.start[rows[0]])
     clean = rows.size == lines.start.size - rows[0] and bool(
         np.all(lines.stop[rows] == lines.end[rows])
     )
-    if clean:  # the usual file: nothing but data after the header
-        return buf[first:]
+    if clean:
+        return buf, lines.start[rows]
     marks = np.zeros(data.shape[0] + 1, np.int8)
     marks[lines.start[rows]] = 1
     marks[lines.stop[rows]] = -1
     keep = np.cumsum(marks[:-1], dtype=np.int8) > 0
     newline = lines.end[rows]
     keep[newline[newline < data.shape[0]]] = True
-    return data[keep].tobytes()
+    del marks, first
+    text = data[keep].tobytes()
+    ends = _positions(np.frombuffer(text, np.uint8) == ord("\n"))
+    return text, np.concatenate([np.zeros(1, np.int64), ends + 1])[: rows.size]
 
 
 def _is_number(text: str) -> bool:
@@ -434,30 +477,44 @@ def _time_plan(
     return COUNTER, None
 
 
-def _first_bad_row(blob: list[bytes], usecols: list[int], dtype: np.dtype[np.void]) -> int:
-    """Index of the first row np.loadtxt refuses, by bisection with np.loadtxt itself, so the
-    answer agrees with the parser exactly (about twice the work of one pass)."""
-    lo, hi = 0, len(blob)
+def _first_bad_row(
+    text: bytes, starts: I64, usecols: list[int], dtype: np.dtype[np.void]
+) -> tuple[int, bytes]:
+    """The first row np.loadtxt refuses (its index and bytes), by bisection with np.loadtxt
+    itself over the rows' byte ranges, so the answer agrees with the parser exactly (about
+    twice the work of one pass). starts: where each row begins in text."""
+    bounds = np.append(starts, len(text))
+    lo, hi = 0, int(starts.size)
     while hi - lo > 1:
         mid = (lo + hi) // 2
         try:
-            _loadtxt(b"\n".join(blob[lo:mid]), usecols, dtype)
+            _loadtxt(text[bounds[lo] : bounds[mid]], usecols, dtype)
         except ValueError:
             hi = mid
         else:
             lo = mid
-    return lo
+    return lo, text[bounds[lo] : bounds[lo + 1]].rstrip(b"\n")
 
 
-def _loadtxt(text: bytes, usecols: list[int], dtype: np.dtype[np.void]) -> npt.NDArray[np.void]:
+def _loadtxt(
+    text: bytes,
+    usecols: list[int],
+    dtype: np.dtype[np.void],
+    start: int = 0,
+    max_rows: int | None = None,
+) -> npt.NDArray[np.void]:
+    """np.loadtxt of the rows of text from byte `start` (BytesIO shares text's bytes: no copy)."""
+    f = io.BytesIO(text)
+    f.seek(start)
     out: npt.NDArray[np.void] = np.loadtxt(
-        io.BytesIO(text),
+        f,
         delimiter=",",
         comments=None,
         dtype=dtype,
         usecols=usecols,
         ndmin=1,
         encoding="utf-8",
+        max_rows=max_rows,
     )
     return out
 
@@ -613,6 +670,30 @@ def read_csv(
     if mag_per_ut is not None and not (math.isfinite(mag_per_ut) and mag_per_ut > 0):
         raise ValueError(f"mag_per_ut must be a positive number of counts, not {mag_per_ut!r}")
 
+    try:
+        return _read(path, accel_units, gyro_units, mag_units, gravity, time_units, rate_hz,
+                     need, mag_per_ut, untimed_rate_hz)  # fmt: skip
+    except MemoryError:
+        raise CsvError(
+            path,
+            f"not enough memory to read its {memory.size_text(_file_size(path))}: a "
+            "calibration needs minutes of data, not hours; "
+            "cut the recording (its first million rows: `head -n 1000001 FILE > part.csv`)",
+        ) from None
+
+
+def _read(
+    path: Path,
+    accel_units: AccelUnits,
+    gyro_units: GyroUnits,
+    mag_units: MagUnits,
+    gravity: float,
+    time_units: TimeUnits | None,
+    rate_hz: float | None,
+    need: tuple[str, ...],
+    mag_per_ut: float | None,
+    untimed_rate_hz: float | None,
+) -> Recording:
     buf = path.read_bytes()
     buf = buf.removeprefix(b"\xef\xbb\xbf")  # the UTF-8 byte order mark some editors write
     if b"\r" in buf:  # Windows (CRLF) or old Mac (CR) line ends
@@ -676,17 +757,31 @@ def read_csv(
     integer = {"flags", COUNTER} | ({TIME} if unit == "ns" else set())
     dtype = np.dtype([(n, np.int64 if n in integer else np.float64) for n in names])
     usecols = [cols[n].field for n in names]
-    text = _data_bytes(buf, data, lines, rows)
+    # what the rest costs, asked of the machine before it is spent: a refusal that says so
+    # beats a process the kernel kills half-way (the bytes read so far are already counted)
+    cost = rows.size * (BYTES_PER_ROW + 16 * len(names))
+    short = memory.shortfall(cost, f"its {rows.size:,} rows")
+    if short is not None:
+        raise CsvError(path, short)
+    text, starts = _data_rows(buf, data, lines, rows)
+    del data, lines, content, buf
     try:
-        table = _loadtxt(text, usecols, dtype)
+        table = _loadtxt(text, usecols, dtype, int(starts[0]), int(rows.size))
     except ValueError:
-        blob = text.split(b"\n")[: rows.size]
-        k = _first_bad_row(blob, usecols, dtype)
-        raise _conversion_error(path, int(line_of[k]), blob[k], cols, dtype) from None
+        k, row = _first_bad_row(text, starts, usecols, dtype)
+        raise _conversion_error(path, int(line_of[k]), row, cols, dtype) from None
+    del text, starts
     t_ns = _times(path, table, cols, (header_line, line_of), when, unit, rate_hz)
     return _recording(
         path, table, cols, t_ns, line_of, (accel_units, gyro_units, mag_units), gravity, mag_per_ut
     )
+
+
+def _file_size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0
 
 
 _RATE_NAMES = frozenset({"fs", "rate", "rate_hz", "sample_rate", "sampling_rate"})

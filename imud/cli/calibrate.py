@@ -157,7 +157,25 @@ def _gravity_opts(f: Any) -> Any:
     return click.option("--height", type=float, help="height above the ellipsoid, m")(f)
 
 
-@click.group()
+class _CalibrateGroup(click.Group):
+    """The calibrate commands, where a recording too large for this machine's memory ends in a
+    message and the fix, never a traceback (the CSV reader asks first; this is for what a
+    procedure allocates after it)."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        try:
+            return super().invoke(ctx)
+        except MemoryError:
+            _fail(
+                "out of memory: the recording is too large for this machine; a calibration "
+                "needs minutes of data, not hours: cut it (its first million rows: "
+                "`head -n 1000001 FILE > part.csv`)",
+                EXIT_USAGE,
+                "--json" in sys.argv[1:],  # the subcommand's own flag, gone with its context
+            )
+
+
+@click.group(cls=_CalibrateGroup)
 def calibrate() -> None:
     """Estimate calibrations (accel, gyro, temp, mag) and apply them to recordings.
 
