@@ -81,9 +81,9 @@ def recordings(draw: Any) -> Recording:
     return Recording(t_ns, accel, gyro, temp=temp, mag=mag, source=f"fuzz {kind}")
 
 
-def _outcome(fn: Any, *args: Any) -> Any:
+def _outcome(fn: Any, *args: Any, **kwargs: Any) -> Any:
     try:
-        return fn(*args)
+        return fn(*args, **kwargs)
     except CalibrationRefused as e:
         assert str(e).strip(), "a refusal without a message"
         return None
@@ -115,5 +115,8 @@ def test_no_procedure_throws_on_garbage(rec: Recording, model: str) -> None:
         (run_temp, (rec, ("accel", "gyro"), 3)),
     ]:
         _writes(_outcome(fn, *args))
+    # each row a still pose's reading (--shots): the same garbage read as a shot list
+    _writes(_outcome(run_accel, rec, 9.81, model, shots=True))
     if rec.mag is not None:
         _writes(_outcome(run_mag, rec, None))
+        _writes(_outcome(run_mag, rec, None, shots=True))

@@ -52,13 +52,22 @@ import numpy.typing as npt
 from imud.calib.acceptance import MAG_TOLERANCE_FRACTION, Acceptance, model_error_floor
 from imud.calib.estimate import F64, AffineEstimate, Fit, Verdict
 from imud.calib.recording import Recording
-from imud.calib.stats import chi2_sf
+from imud.calib.stats import chi2_sf, t_sf_two_sided
 from imud.calib.still import CalibrationRefused
 
 P_REJECT = 0.01
 MIN_SAMPLES = 200
 """At least ~3 readings per direction cell on average. The noise estimate then has ~90 degrees
 of freedom (about 8 % in sigma), and the 9 parameters are overdetermined twenty times over."""
+
+MIN_SHOTS = 18
+"""A shot list (one reading a pose): twice the 9 parameters, so the residuals that give its
+noise have as many degrees of freedom as the fit has parameters."""
+
+WEAK_MATRIX_SIGMA = 0.03
+"""A soft-iron element the readings leave this uncertain (1 sigma; the matrix is near the
+identity) is named undetermined; a bias is, beyond the tolerance (MAG_TOLERANCE_FRACTION of the
+field)."""
 
 MAX_AXIS_RATIO = 3.0
 """Largest ratio of the correction's longest to shortest axis. Real soft iron distorts by tens
@@ -86,6 +95,9 @@ _AXIS_WORDS = {
     "-z": "-z (bottom face pointing along the field)",
 }
 _SYM = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))  # order of the 6 matrix parameters
+SCALE_FIXED = "field fixed to field_t: matrix = field_t * A"
+SCALE_FREE = "det(matrix) = 1: field = geometric mean of the ellipsoid's semi-axes"
+MINMAX_METHOD = "per-axis mid-range and half-range (the seed's); no covariance"
 NAMES = ("bias_x", "bias_y", "bias_z", "m_xx", "m_yy", "m_zz", "m_xy", "m_xz", "m_yz", "field")
 
 
@@ -433,7 +445,10 @@ def _report_jacobian(a: F64, field_t: float | None) -> tuple[F64, float]:
 
 
 def fit_mag(
-    rec: Recording, field_t: float | None = None, acceptance: Acceptance | None = None
+    rec: Recording,
+    field_t: float | None = None,
+    acceptance: Acceptance | None = None,
+    shots: bool = False,
 ) -> MagResult:
     """Hard iron (bias, tesla) and symmetric soft iron (matrix) from a recording rotated
     through many directions.
@@ -445,18 +460,32 @@ def fit_mag(
     columns, fewer than MIN_SAMPLES distinct readings, or readings that span no ellipsoid.
     Otherwise it returns an estimate whose verdict refuses poor coverage (and names the
     missing directions) or residuals beyond the measured noise.
+
+    shots: each row is one reading of a still pose (a shot list: no stream, so no noise to
+    measure between samples). The noise is then what the residuals show, the readings need not
+    fill the sphere's cells but must determine every parameter (named from the fit's sigmas
+    otherwise), and the verdict accepts a residual RMS within the tolerance.
     """
     if field_t is not None and not (math.isfinite(field_t) and field_t > 0):
         raise ValueError(f"field_t must be a positive field magnitude in tesla, got {field_t}")
     m, t_ns, saturated, held = _readings(rec)
     where = rec.source or "the recording"
-    if m.shape[0] < MIN_SAMPLES:
+    need = MIN_SHOTS if shots else MIN_SAMPLES
+    if m.shape[0] < need:
+        more = (
+            "take readings in new directions"
+            if shots
+            else "rotate the device slowly through all directions for longer"
+        )
         raise CalibrationRefused(
             f"{where} has {m.shape[0]} distinct magnetometer readings; the fit needs at least "
-            f"{MIN_SAMPLES} ({MIN_SAMPLES - m.shape[0]} more): rotate the device slowly "
-            "through all directions for longer"
+            f"{need} ({need - m.shape[0]} more): {more}"
         )
-    sigma, noise_dof = difference_noise(m, t_ns)
+    if shots:  # a nominal noise for the fit's weights; the residuals give the real one below
+        spread = float(np.sqrt(np.mean(np.sum((m - m.mean(axis=0)) ** 2, axis=1))))
+        sigma, noise_dof = np.full(3, spread * 1e-3), np.full(3, np.inf)
+    else:
+        sigma, noise_dof = difference_noise(m, t_ns)
     if not np.all(sigma > 0):
         raise CalibrationRefused(
             f"{where}: the magnetometer readings do not vary from sample to sample "
@@ -497,13 +526,26 @@ def fit_mag(
     matrix = field * a
     residuals, u, c = _residual_stats(m, bias, matrix, field, sigma, noise_dof, 9)
     acceptance = acceptance or Acceptance(significance=P_REJECT)
+    tolerance = acceptance.tolerance_for(MAG_TOLERANCE_FRACTION * field)
+    if shots:
+        # the noise the residuals show, over their degrees of freedom: the weights were all
+        # equal, so the fit stands and its covariance scales
+        shown = residuals["rms"] * math.sqrt(m.shape[0] / residuals["dof"])
+        ratio = shown / residuals["noise"]
+        sigma, covariance = sigma * ratio, covariance * ratio * ratio
+        residuals, u, c = _residual_stats(m, bias, matrix, field, sigma, noise_dof, 9)
+        residuals["model_error"] = 0.0
+        fixed = field_t is not None
+        return _shots_result(
+            rec, m, (bias, matrix, field, covariance), (sigma, noise_dof), residuals, u,
+            tolerance, fixed, acceptance.significance,
+        )  # fmt: skip
     floor = _floor(m, bias, matrix, field, sigma, residuals, c, acceptance.significance)
     residuals["model_error"] = floor
     if floor > 0:
         # the model error in every sample's variance: the per-sample noise is nearly the same
         # for every sample, so the covariance scales by (noise^2 + s^2) / noise^2
         covariance = covariance * (1.0 + (floor / residuals["noise"]) ** 2)
-    tolerance = acceptance.tolerance_for(MAG_TOLERANCE_FRACTION * field)
     cover = coverage(u)
 
     reasons: list[str] = []
@@ -549,11 +591,7 @@ def fit_mag(
         reasons.append(f"{saturated} saturated samples were left out")
 
     details: dict[str, Any] = {
-        "scale": (
-            "field fixed to field_t: matrix = field_t * A"
-            if field_t is not None
-            else "det(matrix) = 1: field = geometric mean of the ellipsoid's semi-axes"
-        ),
+        "scale": SCALE_FIXED if field_t is not None else SCALE_FREE,
         "free_parameters": 9,
         "start": start_name,
         "iterations": iterations,
@@ -595,12 +633,94 @@ def fit_mag(
             np.concatenate([mm_bias, _sym6(mm_matrix), [mm_radius]]),
             np.full((10, 10), np.nan),
             mm_res,
-            {"method": "per-axis mid-range and half-range (the seed's); no covariance"},
+            {"method": MINMAX_METHOD},
         ),
         Verdict(False, ("the seed's per-axis min/max, shown for comparison only",)),
         temperature_c=temperature,
         field_t=mm_radius,
     )
+    return MagResult(estimate, minmax, cover)
+
+
+def _shots_result(
+    rec: Recording,
+    m: F64,
+    solved: tuple[F64, F64, float, F64],
+    noise: tuple[F64, F64],
+    residuals: dict[str, float],
+    u: F64,
+    tolerance: float,
+    field_fixed: bool,
+    significance: float,
+) -> MagResult:
+    """A shot list's verdict: every parameter determined (from the fit's sigmas, not a count
+    of cells), and the residual RMS within the tolerance. solved: bias, matrix, field and
+    covariance; noise: the per-axis sigma the residuals show and its degrees of freedom."""
+    bias, matrix, field, covariance = solved
+    sig = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    weak = [
+        f"{name} (sigma {s * 1e6:.3g} uT)" if name.startswith("bias") else f"{name} (sigma {s:.2g})"
+        for name, s in zip(NAMES[:9], sig[:9], strict=True)
+        if not s <= (tolerance if name.startswith("bias") else WEAK_MATRIX_SIGMA)
+    ]
+    cover = coverage(u)
+    reasons: list[str] = []
+    rms = residuals["rms"]
+    if weak:
+        reasons.append(
+            f"{m.shape[0]} readings leave {', '.join(weak)} undetermined: take readings with "
+            f"the field along {', '.join(cover.missing) or 'directions between those taken'}"
+        )
+    r = np.linalg.norm((m - bias) @ matrix.T, axis=1) - field
+    worst = int(np.argmax(np.abs(r)))
+    # one reading off the others' ellipsoid (taken beside iron, or moving) hides in the RMS of
+    # forty: judged against the others' scatter (the residuals but its own, over their degrees
+    # of freedom: Student's t), Bonferroni over the readings
+    dof = m.shape[0] - 1 - 9
+    scatter = math.sqrt(max(float(r @ r) - float(r[worst]) ** 2, 0.0) / dof)
+    z = abs(float(r[worst])) / scatter if scatter > 0 else math.inf
+    if t_sf_two_sided(z, dof) * m.shape[0] < significance:
+        reasons.append(
+            f"reading {worst + 1} (line order) is {r[worst] * 1e6:+.3g} uT off the others' "
+            f"ellipsoid, {z:.0f} times their scatter ({scatter * 1e6:.2g} uT): taken beside iron "
+            "or a current, or while moving; take it again or leave it out"
+        )
+    elif rms > tolerance:
+        reasons.append(
+            f"a shot list's residuals are {rms * 1e6:.3g} uT RMS, more than the tolerance of "
+            f"{tolerance * 1e6:.3g} uT (--tolerance-ut): the worst is reading {worst + 1} "
+            "(line order); readings near iron or a current, or taken while moving"
+        )
+    accepted = not reasons
+    if accepted:
+        reasons.append(
+            f"a shot list (one reading a pose): its noise is taken from the residuals, "
+            f"{rms * 1e6:.3g} uT RMS, within the tolerance of {tolerance * 1e6:.3g} uT"
+        )
+    details: dict[str, Any] = {
+        "scale": SCALE_FIXED if field_fixed else SCALE_FREE,
+        "free_parameters": 9,
+        "n_samples": int(m.shape[0]),
+        "shots": True,
+        "noise_per_axis_t": noise[0].tolist(),
+        "coverage_fraction": cover.fraction,
+        "coverage_missing": list(cover.missing),
+    }
+    fit = Fit(NAMES, np.concatenate([bias, _sym6(matrix), [field]]), covariance, residuals, details)
+    temperature = _mean_temperature(rec)
+    estimate = AffineEstimate(
+        "mag", "mag-ellipsoid", bias, matrix, fit, Verdict(accepted, tuple(reasons)),
+        temperature_c=temperature, field_t=field,
+    )  # fmt: skip
+    mm_bias, mm_matrix, mm_radius = _minmax(m)
+    mm_res, _, _ = _residual_stats(m, mm_bias, mm_matrix, mm_radius, *noise, 6)
+    minmax = AffineEstimate(
+        "mag", "mag-minmax", mm_bias, mm_matrix,
+        Fit(NAMES, np.concatenate([mm_bias, _sym6(mm_matrix), [mm_radius]]),
+            np.full((10, 10), np.nan), mm_res, {"method": MINMAX_METHOD}),
+        Verdict(False, ("the seed's per-axis min/max, shown for comparison only",)),
+        temperature_c=temperature, field_t=mm_radius,
+    )  # fmt: skip
     return MagResult(estimate, minmax, cover)
 
 

@@ -221,17 +221,24 @@ def run_accel(
     )
 
 
-def run_mag(rec: Recording, field_t: float | None, acceptance: Acceptance | None = None) -> Outcome:
+def run_mag(
+    rec: Recording,
+    field_t: float | None,
+    acceptance: Acceptance | None = None,
+    shots: bool = False,
+) -> Outcome:
+    """`shots`: each row of `rec` is one still pose's reading (imud/calib/mag.py)."""
     from imud.calib.mag import fit_mag
 
-    check_recording(rec, ("mag",))
+    check_recording(rec, ("mag",), min_samples=2 if shots else None)
 
-    res = fit_mag(rec, field_t, acceptance)
+    res = fit_mag(rec, field_t, acceptance, shots)
     est = res.estimate
     report = affine_report(est)
     report["coverage"] = {
         "fraction": res.coverage.fraction,
-        "required": res.coverage.required,
+        # a shot list is judged by what its readings determine, not by cells filled
+        "required": None if shots else res.coverage.required,
         "cells": res.coverage.cells,
         "missing": list(res.coverage.missing),
     }

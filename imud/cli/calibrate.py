@@ -714,7 +714,8 @@ def mag(field_ut: float | None, strict: bool, tolerance_ut: float | None, **opts
 
         tolerance = None if tolerance_ut is None else tolerance_ut * 1e-6
         acceptance = Acceptance(strict, 0.01, tolerance)
-        outcome = run_mag(rec, None if field_ut is None else field_ut * 1e-6, acceptance)
+        field = None if field_ut is None else field_ut * 1e-6
+        outcome = run_mag(rec, field, acceptance, shots=bool(opts.get("shots")))
     except CalibrationRefused as e:
         _refused(e, job.as_json)
     job.finish(outcome, None, notes, rec.source)

@@ -58,7 +58,8 @@ def show(report: dict[str, Any], console: Console | None = None) -> None:
             con.print(f"  distinct orientations: {r['orientations']}")
         if "coverage" in r:
             c = r["coverage"]
-            con.print(f"  direction coverage: {c['fraction']:.0%} (needs {c['required']:.0%})")
+            needs = "" if c["required"] is None else f" (needs {c['required']:.0%})"
+            con.print(f"  direction coverage: {c['fraction']:.0%}{needs}")
         if "order" in r:
             con.print(
                 f"  polynomial order {r['order']} about {r['reference_c']:g} degC, "
