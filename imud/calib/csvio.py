@@ -554,18 +554,24 @@ def _median_norm(v: F64) -> float:
     return float(np.median(np.sqrt(np.einsum("ij,ij->i", v, v))))
 
 
-def _unit_problems(
+def unit_problems(
     accel: F64 | None,
     gyro: F64 | None,
     temp: F64 | None,
     mag: F64 | None,
     units: tuple[AccelUnits, GyroUnits, MagUnits],
     gravity: float,
+    counted: frozenset[str] = frozenset(),
 ) -> list[tuple[tuple[str, ...], str]]:
     """(columns, what is wrong) for each sensor whose values are off by orders of magnitude
-    in the declared units. The values are those of the file, before conversion."""
+    in the declared units. The values are in those units, before conversion to SI. counted:
+    the sensors ("accel", "gyro", "mag") whose values came from raw counts by the user's
+    --*-counts, so a wrong value points at that option."""
     accel_units, gyro_units, mag_units = units
     out: list[tuple[tuple[str, ...], str]] = []
+    out += _counted_problems(accel, gyro, units, gravity, counted)
+    if out:
+        return out
 
     a = _median_norm(accel) if accel is not None else gravity
     a_si = a * (gravity if accel_units == "g" and accel is not None else 1.0)
@@ -578,7 +584,10 @@ def _unit_problems(
         elif a_si < gravity / 30:
             hint = "is gravity removed (linear acceleration)? calibration needs what the chip read"
         else:
-            hint = "milli-g or raw counts? convert to m/s^2 or g"
+            hint = (
+                "milli-g? convert to m/s^2 or g; raw counts? give --accel-counts "
+                "PER_UNIT,ZERO (counts per unit of --accel-units, and the count that reads 0)"
+            )
         out.append((("ax", "ay", "az"), f"{said}: {hint}"))
 
     w = float(np.percentile(np.max(np.abs(gyro), axis=1), 99)) if gyro is not None else 0.0
@@ -591,7 +600,10 @@ def _unit_problems(
         if gyro_units == "rad/s" and w * math.pi / 180 <= GYRO_MAX_RAD_S:
             hint = "looks like dps: pass --gyro-units dps"
         else:
-            hint = "raw counts? convert to rad/s or deg/s"
+            hint = (
+                "raw counts? give --gyro-counts PER_UNIT,ZERO (counts per unit of "
+                "--gyro-units, and the count that reads 0)"
+            )
         out.append((("gx", "gy", "gz"), f"{said}: {hint}"))
 
     if mag is not None:
@@ -609,6 +621,9 @@ def _unit_problems(
                 hint = "looks like tesla: pass --mag-units T"
             elif 0.1 <= m < 1:
                 hint = "looks like gauss: multiply by 100 and pass --mag-units uT"
+            elif m > 1.0:
+                hint = "raw counts? give --mag-counts, the counts a microtesla (its datasheet's "
+                hint += "LSB/gauss divided by 100)"
             else:
                 hint = "convert to tesla or uT"
             out.append((("mx", "my", "mz"), f"{said}: {hint}"))
@@ -619,6 +634,53 @@ def _unit_problems(
             hint = "looks like kelvin" if 200 <= c <= 450 else "raw counts?"
             out.append(
                 (("temp",), f"the median temp is {c:.4g}, not degC: {hint}; convert to degC")
+            )
+    return out
+
+
+GYRO_ZERO_MAX_RAD_S = 1.0  # a gyro's median over a calibration recording (mostly still)
+
+
+def _counted_problems(
+    accel: F64 | None,
+    gyro: F64 | None,
+    units: tuple[AccelUnits, GyroUnits, MagUnits],
+    gravity: float,
+    counted: frozenset[str],
+) -> list[tuple[tuple[str, ...], str]]:
+    """What a wrong --accel-counts / --gyro-counts does: gravity far from g (the scale, or
+    the unit it is per), a gyro whose median is far from zero (the zero count)."""
+    out: list[tuple[tuple[str, ...], str]] = []
+    if accel is not None and "accel" in counted:
+        a = _median_norm(accel) * (gravity if units[0] == "g" else 1.0)
+        if not gravity / 1.5 <= a <= gravity * 1.5:
+            ratio = a / gravity
+            per_g = ratio * 9.80665 if units[0] == "m/s2" else None
+            hint = (
+                "counts per g? add --accel-units g"
+                if per_g is not None and 0.8 <= 1 / per_g <= 1.25
+                else "is the zero count right (offset-binary 16-bit parts read 0 at 32768)?"
+            )
+            out.append(
+                (
+                    ("ax", "ay", "az"),
+                    f"with --accel-counts the median |accel| is {a:.4g} m/s^2, {ratio:.3g} times "
+                    f"gravity: check the counts per {units[0]} ({hint})",
+                )
+            )
+    if gyro is not None and "gyro" in counted:
+        scale = math.pi / 180 if units[1] == "dps" else 1.0
+        median = np.median(gyro, axis=0) * scale
+        worst = int(np.argmax(np.abs(median)))
+        if abs(float(median[worst])) > GYRO_ZERO_MAX_RAD_S:
+            out.append(
+                (
+                    ("gx", "gy", "gz"),
+                    f"with --gyro-counts the gyro's median on {'xyz'[worst]} is "
+                    f"{float(median[worst]):.4g} rad/s, far from zero for a recording that is "
+                    "mostly still: is the zero count right (--gyro-counts PER_UNIT,ZERO; "
+                    "offset-binary 16-bit parts read 0 at 32768)?",
+                )
             )
     return out
 
@@ -635,14 +697,18 @@ def read_csv(
     need: tuple[str, ...] = ("accel", "gyro"),
     mag_per_ut: float | None = None,
     untimed_rate_hz: float | None = None,
+    accel_counts: tuple[float, float] | None = None,
+    gyro_counts: tuple[float, float] | None = None,
 ) -> Recording:
     """Read a recording (docs/recording-csv.md) into SI units.
 
     need: the sensors whose columns must be there ("accel", "gyro", "mag"): a recording holds
     what it measured, so a magnetometer session needs no accelerometer; a sensor not needed and
     not in the file reads as NaN (never as a value). mag_per_ut: the magnetometer columns are
-    raw counts, this many a microtesla. untimed_rate_hz: the rate of rows with no time column,
-    counter, --rate or preamble (a shot list's rows need none). Lines before the header of the
+    raw counts, this many a microtesla; accel_counts / gyro_counts: those columns are raw
+    counts, (counts per unit of accel_units / gyro_units, the count that reads 0).
+    untimed_rate_hz: the rate of rows with no time column, counter, --rate or preamble (a shot
+    list's rows need none). Lines before the header of the
     form `name,number` are the file's preamble (a tool's `Fs,50.00`): `Fs`, `rate` or
     `sample_rate` gives the rate of a file with neither a time column nor a sample counter,
     each row then one sample.
@@ -671,8 +737,9 @@ def read_csv(
         raise ValueError(f"mag_per_ut must be a positive number of counts, not {mag_per_ut!r}")
 
     try:
+        counts = {"accel": accel_counts, "gyro": gyro_counts, "mag": mag_per_ut}
         return _read(path, accel_units, gyro_units, mag_units, gravity, time_units, rate_hz,
-                     need, mag_per_ut, untimed_rate_hz)  # fmt: skip
+                     need, counts, untimed_rate_hz)  # fmt: skip
     except MemoryError:
         raise CsvError(
             path,
@@ -691,7 +758,7 @@ def _read(
     time_units: TimeUnits | None,
     rate_hz: float | None,
     need: tuple[str, ...],
-    mag_per_ut: float | None,
+    counts: Mapping[str, tuple[float, float] | float | None],
     untimed_rate_hz: float | None,
 ) -> Recording:
     buf = path.read_bytes()
@@ -773,7 +840,7 @@ def _read(
     del text, starts
     t_ns = _times(path, table, cols, (header_line, line_of), when, unit, rate_hz)
     return _recording(
-        path, table, cols, t_ns, line_of, (accel_units, gyro_units, mag_units), gravity, mag_per_ut
+        path, table, cols, t_ns, line_of, (accel_units, gyro_units, mag_units), gravity, counts
     )
 
 
@@ -915,9 +982,10 @@ def _recording(
     line_of: I64,
     units: tuple[AccelUnits, GyroUnits, MagUnits],
     gravity: float,
-    mag_per_ut: float | None = None,
+    counts: Mapping[str, tuple[float, float] | float | None],
 ) -> Recording:
-    """Checks on the parsed values (finite, plausible units), then SI units."""
+    """Checks on the parsed values (finite, plausible units), then SI units. counts: the
+    sensors given as raw counts (accel/gyro: per unit and zero; mag: per uT)."""
     names = table.dtype.names or ()
     first_bad: dict[str, int] = {}  # column -> first row where it is NaN or infinite
     for name in names:
@@ -954,10 +1022,20 @@ def _recording(
     gyro = vec("gx", "gy", "gz") if "gx" in names else None
     temp = np.ascontiguousarray(table["temp"], np.float64) if "temp" in names else None
     mag = vec("mx", "my", "mz") if "mx" in names else None
-    if mag is not None and mag_per_ut is not None:
-        mag = mag / mag_per_ut  # counts -> uT, then checked and converted as uT
+    counted: set[str] = set()
+    mag_per_ut = counts.get("mag")
+    if mag is not None and isinstance(mag_per_ut, int | float):
+        mag = mag / float(mag_per_ut)  # counts -> uT, then checked and converted as uT
         units = (units[0], units[1], "uT")
-    problems = _unit_problems(accel, gyro, temp, mag, units, gravity)
+        counted.add("mag")
+    accel_counts, gyro_counts = counts.get("accel"), counts.get("gyro")
+    if accel is not None and isinstance(accel_counts, tuple):
+        accel = (accel - accel_counts[1]) / accel_counts[0]  # counts -> --accel-units
+        counted.add("accel")
+    if gyro is not None and isinstance(gyro_counts, tuple):
+        gyro = (gyro - gyro_counts[1]) / gyro_counts[0]
+        counted.add("gyro")
+    problems = unit_problems(accel, gyro, temp, mag, units, gravity, frozenset(counted))
     if problems:
         cols_text = "; ".join(", ".join(cols[q].label for q in qs) for qs, _ in problems)
         raise CsvError(path, "; ".join(p for _, p in problems), None, cols_text)

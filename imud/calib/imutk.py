@@ -18,7 +18,9 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from imud.calib.csvio import AccelUnits, GyroUnits, unit_problems
 from imud.calib.recording import Recording
+from imud.units import STANDARD_GRAVITY
 
 F64 = npt.NDArray[np.float64]
 
@@ -109,9 +111,13 @@ def read_imu_tk(
     gyro_path: Path,
     accel_counts: tuple[float, float],
     gyro_counts: tuple[float, float],
+    units: tuple[AccelUnits, GyroUnits] = ("m/s2", "rad/s"),
+    gravity: float = STANDARD_GRAVITY,
 ) -> Recording:
     """The pair as one recording, in SI at the nominal scales. The two files must hold the same
-    instants (imu_tk pairs them by line)."""
+    instants (imu_tk pairs them by line). The counts are per unit of `units` (counts per g with
+    "g", per deg/s with "dps"); a scale or zero that gives no gravity, or a gyro far from zero
+    at rest, is refused naming the option."""
     acc, acc_lines = _read(accel_path)
     gyr, _ = _read(gyro_path)
     if acc.shape[0] != gyr.shape[0] or not np.array_equal(acc[:, 0], gyr[:, 0]):
@@ -130,4 +136,13 @@ def read_imu_tk(
     t_ns = np.round(acc[:, 0] * 1e9).astype(np.int64)
     accel = (acc[:, 1:] - accel_counts[1]) / accel_counts[0]
     gyro = (gyr[:, 1:] - gyro_counts[1]) / gyro_counts[0]
+    problems = unit_problems(
+        accel, gyro, None, None, (*units, "T"), gravity, frozenset({"accel", "gyro"})
+    )
+    if problems:
+        raise ImuTkError(f"{accel_path} + {gyro_path}: " + "; ".join(p for _, p in problems))
+    if units[0] == "g":
+        accel *= gravity
+    if units[1] == "dps":
+        gyro *= math.pi / 180
     return Recording(t_ns, accel, gyro, source=f"{accel_path.name} + {gyro_path.name}")

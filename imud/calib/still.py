@@ -306,7 +306,10 @@ def _rails(rec: Recording) -> tuple[F64, F64]:
     noise alone (a continuous distribution's tail) does not do."""
     hi = np.concatenate((_column_reduce(rec.accel, np.max), _column_reduce(rec.gyro, np.max)))
     lo = np.concatenate((_column_reduce(rec.accel, np.min), _column_reduce(rec.gyro, np.min)))
-    return hi, lo
+    # a column that never moves has no rails to clip at: it is stuck, or not recorded (zeros
+    # where a tool had no gyro), and says so elsewhere; its samples are not saturated
+    stuck = hi == lo
+    return np.where(stuck, np.inf, hi), np.where(stuck, -np.inf, lo)
 
 
 def _column_reduce(x: F64, fn: Any) -> F64:

@@ -205,6 +205,8 @@ class Job:
         self.chip: str | None = opts.get("chip")
         self.device_name: str | None = opts.get("device")
         self.out: Path | None = Path(opts["out"]) if opts.get("out") else None
+        if opts.get("plot"):
+            _check_plot_path(Path(opts["plot"]), self.as_json)
         self._from_config()
 
     def _from_config(self) -> None:
@@ -290,6 +292,8 @@ class Job:
                     need=_NEEDS.get(self.kind, ("accel", "gyro")),
                     mag_per_ut=self.o.get("mag_counts"),
                     untimed_rate_hz=1.0 if self.o.get("shots") else None,  # rows, not time
+                    accel_counts=self._counts("accel"),
+                    gyro_counts=self._counts("gyro"),
                 )
             except CsvError as e:
                 _fail(str(e), EXIT_USAGE, self.as_json)
@@ -305,9 +309,22 @@ class Job:
             return rec
         return live(self)
 
+    def _counts(self, sensor: str) -> tuple[float, float] | None:
+        """--accel-counts / --gyro-counts, parsed (a bad one is a usage error, said)."""
+        from imud.calib.imutk import ImuTkError, parse_counts
+
+        text = self.o.get(f"{sensor}_counts")
+        if text is None:
+            return None
+        try:
+            return parse_counts(text, sensor)
+        except ImuTkError as e:
+            _fail(str(e), EXIT_USAGE, self.as_json)
+
     def _imu_tk(self, accel_path: Path) -> Any:
         """imu_tk's pair of files (docs/recording-csv.md "imu_tk's files")."""
         from imud.calib.imutk import ImuTkError, parse_counts, read_imu_tk
+        from imud.units import STANDARD_GRAVITY
 
         missing = [
             flag
@@ -331,6 +348,8 @@ class Job:
                 Path(self.o["gyro_from"]),
                 parse_counts(self.o["accel_counts"], "accel"),
                 parse_counts(self.o["gyro_counts"], "gyro"),
+                (self.o["accel_units"], self.o["gyro_units"]),
+                self.o.get("gravity") or STANDARD_GRAVITY,
             )
         except ImuTkError as e:
             _fail(str(e), EXIT_USAGE, self.as_json)
@@ -374,6 +393,8 @@ class Job:
         }
         if gravity_note:
             report["gravity_source"] = gravity_note
+        if self.o.get("plot"):  # before the file: a plot that fails leaves nothing half done
+            _plot(self.kind, outcome, Path(self.o["plot"]), self.as_json)
         written = None
         if outcome.accepted and not self.o["dry_run"]:
             from imud.calib.file import CalibrationError
@@ -386,8 +407,6 @@ class Job:
             write_calibration(self.out, cf)
             written = str(self.out)
         report["written"] = written
-        if self.o.get("plot"):
-            _plot(self.kind, outcome, Path(self.o["plot"]), self.as_json)
         if self.as_json:
             click.echo(json.dumps(report, indent=2))
         else:
@@ -397,12 +416,36 @@ class Job:
         sys.exit(0 if outcome.accepted else EXIT_REFUSED)
 
 
-def _plot(kind: str, outcome: Any, path: Path, as_json: bool) -> None:
+# what matplotlib writes, by the file's suffix
+_PLOT_FORMATS = ("png", "pdf", "svg", "jpg", "jpeg", "webp", "tif", "tiff", "eps", "ps")
+
+
+def _check_plot_path(path: Path, as_json: bool) -> None:
+    """--plot's file, checked before any work: a format matplotlib writes, in a directory that
+    exists, and matplotlib installed."""
+    suffix = path.suffix.lower().lstrip(".")
+    if suffix not in _PLOT_FORMATS:
+        _fail(
+            f"--plot {path}: name a picture file ({', '.join('.' + f for f in _PLOT_FORMATS)}), "
+            "e.g. fit.png",
+            EXIT_USAGE,
+            as_json,
+        )
+    if not path.parent.is_dir():
+        _fail(f"--plot {path}: no directory {path.parent}", EXIT_USAGE, as_json)
     try:
-        from imud.calib.plot import draw
+        import matplotlib  # noqa: F401
     except ImportError as e:
         _fail(f"--plot needs matplotlib: pip install 'imud[plot]' ({e})", EXIT_USAGE, as_json)
-    draw(kind, outcome, path)
+
+
+def _plot(kind: str, outcome: Any, path: Path, as_json: bool) -> None:
+    from imud.calib.plot import draw
+
+    try:
+        draw(kind, outcome, path)
+    except (OSError, ValueError) as e:  # the disk, permissions: nothing else was written
+        _fail(f"--plot {path}: not drawn ({e}); no calibration written", EXIT_USAGE, as_json)
 
 
 def _compare_file(path: str | None, as_json: bool, sensor: str = "accel") -> Any:
