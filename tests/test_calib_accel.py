@@ -244,7 +244,10 @@ def test_axes_model_takes_a_pose_a_little_off_and_refuses_one_far_off() -> None:
                for r in little.verdict.reasons)  # fmt: skip
     far = fit_accel_intervals(pose_means(tilted_faces(8.0), np.random.default_rng(5)), G, "axes")
     assert not far.verdict.accepted
-    assert "more than the tolerance of 17.5 mg (--tolerance-mg)" in far.verdict.reasons[0]
+    assert (
+        "more than the tolerance of 17.5 mg (the consumer-grade default; --tolerance-mg)"
+        in (far.verdict.reasons[0])
+    )
     assert "pose 3" in far.verdict.reasons[0]
 
 

@@ -13,6 +13,7 @@ import numpy.typing as npt
 import pytest
 
 from imud.calib.accel import fit_accel
+from imud.calib.acceptance import DPH, Acceptance, Grade
 from imud.calib.estimate import AffineEstimate
 from imud.calib.gyro import EARTH_RATE_RAD_S, fit_gyro_bias, fit_gyro_full
 from imud.calib.recording import Recording
@@ -332,13 +333,27 @@ def test_with_the_latitude_a_given_bias_is_held() -> None:
 
 def test_with_the_latitude_poses_that_disagree_are_refused_by_name() -> None:
     """A gyro whose bias moves with gravity (0.01 deg/s/g: a tenth of an MPU6050's): its still
-    poses' means differ by more than Earth's rotation explains."""
+    poses' means differ by more than Earth's rotation explains. The pure test refuses it; the
+    model-error floor measures it in deg/h, within a consumer part's default tolerance and
+    beyond a tactical part's."""
     g_sens = np.radians(0.01) / G * np.array([[0.5, -0.3, 0.2], [0.1, 0.8, -0.4], [0.2, 0.3, 0.6]])
     s = earth_session(71, MOVES, 40.0, g_sensitivity=g_sens)
+    strict = fit_gyro_full(s.rec, None, None, latitude_deg=LAT, acceptance=Acceptance(strict=True))
+    assert not strict.verdict.accepted
+    assert "still poses' gyro means differ" in strict.verdict.reasons[0]
+    assert "g-sensitivity" in strict.verdict.reasons[0]
     est = fit_gyro_full(s.rec, None, None, latitude_deg=LAT)
-    assert not est.verdict.accepted
-    assert "still poses' gyro means differ" in est.verdict.reasons[0]
-    assert "g-sensitivity" in est.verdict.reasons[0]
+    floor = est.fit.residuals["model_error_means"]
+    # the means move by up to |G g| = 0.01 deg/s = 36 deg/h between poses: a floor of that order
+    assert 3 * DPH < floor < 36 * DPH, floor / DPH
+    assert est.verdict.accepted, est.verdict.reasons
+    assert any("deg/h beyond their noise" in r for r in est.verdict.reasons)
+    tight = fit_gyro_full(
+        s.rec, None, None, latitude_deg=LAT, acceptance=Acceptance(grade=Grade.TACTICAL)
+    )
+    if floor > 10 * DPH:  # the tactical default
+        assert not tight.verdict.accepted
+        assert "tactical-grade default; --tolerance-dph" in tight.verdict.reasons[0]
 
 
 def test_bias_with_the_latitude_removes_the_vertical_part_only() -> None:

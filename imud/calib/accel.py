@@ -45,13 +45,7 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from imud.calib.acceptance import (
-    ACCEL_AXES_TOLERANCE,
-    ACCEL_FULL_TOLERANCE,
-    MG,
-    Acceptance,
-    model_error_floor,
-)
+from imud.calib.acceptance import MG, Acceptance, Tolerance, model_error_floor
 from imud.calib.estimate import AffineEstimate, Fit, Verdict
 from imud.calib.recording import Recording
 from imud.calib.stats import chi2_sf
@@ -572,9 +566,8 @@ def _verdict(
     ok = True
     res = est.residuals
     floor = res["model_error"]
-    tolerance = acceptance.tolerance_for(
-        ACCEL_FULL_TOLERANCE if model == "full" else ACCEL_AXES_TOLERANCE
-    )
+    kind = Tolerance.ACCEL_FULL if model == "full" else Tolerance.ACCEL_AXES
+    tolerance = acceptance.tolerance_for(kind)
     if res["dof"] <= 0:
         # an exact fit passes any data through, a pose that moved included, and its sigmas
         # may be huge (nine poses near a cone): nothing says it is right
@@ -596,13 +589,13 @@ def _verdict(
         reasons.append(
             f"the residuals hold a model error of {floor / MG:.2f} mg beyond the poses' noise "
             f"({res['noise'] / MG:.3f} mg), more than the tolerance of {tolerance / MG:g} mg "
-            f"(--tolerance-mg): {_worst(used, poses, model)}"
+            f"({acceptance.source(kind)}): {_worst(used, poses, model)}"
         )
     elif not acceptance.strict and floor > 0:
         reasons.append(
             f"model error {floor / MG:.2f} mg beyond the poses' noise ({res['noise'] / MG:.3f} "
-            f"mg), within the tolerance of {tolerance / MG:g} mg; the parameters' uncertainty "
-            "includes it"
+            f"mg), within the tolerance of {tolerance / MG:g} mg ({acceptance.source(kind)}); "
+            "the parameters' uncertainty includes it"
         )
     if ok and not acceptance.strict and res["dof"] > 0:
         raw, fixed = _norm_errors(poses, est)

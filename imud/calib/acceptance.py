@@ -27,35 +27,90 @@ carried gravity direction's error, up to sqrt(2) s); the magnetometer one (the f
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from enum import StrEnum
 
 from imud.calib.stats import chi2_sf
 from imud.calib.still import CalibrationRefused
 
-# default tolerances on the model-error floor, m/s^2 (accelerometer); why each in the docstring
-# of `Acceptance.tolerance_for`
 MG = 9.80665e-3
-ACCEL_FULL_TOLERANCE = 5.0 * MG
-ACCEL_AXES_TOLERANCE = 17.5 * MG  # per axis: ~1 deg a component, up to ~1.7 deg a pose
-MAG_TOLERANCE_FRACTION = 0.03  # of the field: about 1.7 deg of heading error
+DPH = math.radians(1.0) / 3600.0  # a degree an hour, rad/s
+
+
+class Grade(StrEnum):
+    """A sensor's class, which sets the default tolerances: a consumer MEMS part (phones,
+    hobby boards), an industrial one (ADIS-class, bias stability of a few deg/h), a tactical
+    one (STIM-class, under 1 deg/h). A chip says its own (ChipSpec.grade); --grade overrides."""
+
+    CONSUMER = "consumer"
+    INDUSTRIAL = "industrial"
+    TACTICAL = "tactical"
+
+
+class Tolerance(StrEnum):
+    """What a model-error floor is measured on, each with its option and unit."""
+
+    ACCEL_FULL = "accel"  # a pose's gravity norm, m/s^2
+    ACCEL_AXES = "accel-axes"  # each component of a six-face pose's misfit, m/s^2
+    GYRO_ROTATION = "gyro-rotation"  # each component of a rotation's carried gravity, rad
+    GYRO_BIAS = "gyro-bias"  # the still poses' gyro means (with the latitude), rad/s
+    MAG = "mag"  # the field's norm, as a fraction of the field
+
+
+# The defaults, per grade, in SI (MAG: a fraction of the fitted field). The accelerometer's
+# 5 mg: consumer MEMS calibrated on a table leave 1-3 mg, more is a pose that moved, drift or a
+# wrong g; better parts hold their calibration to 1-2 mg and below. The six-face model counts
+# how far each pose is from its face (about 1 deg at 17.5 mg), the rotations how far a hand
+# moved a pose (1 deg): the set-up's, whatever the part. The gyro's still poses scatter by the
+# bias's drift over the session: 0.1 deg/s for a consumer part, its bias instability's order for
+# better ones. The magnetometer's 3 % (about 1.7 deg of heading) is the room's, not the part's.
+DEFAULTS: dict[Tolerance, dict[Grade, float]] = {
+    Tolerance.ACCEL_FULL: {Grade.CONSUMER: 5 * MG, Grade.INDUSTRIAL: 2 * MG, Grade.TACTICAL: MG},
+    Tolerance.ACCEL_AXES: dict.fromkeys(Grade, 17.5 * MG),
+    Tolerance.GYRO_ROTATION: dict.fromkeys(Grade, math.radians(1.0)),
+    Tolerance.GYRO_BIAS: {
+        Grade.CONSUMER: 360 * DPH,
+        Grade.INDUSTRIAL: 100 * DPH,
+        Grade.TACTICAL: 10 * DPH,
+    },
+    Tolerance.MAG: dict.fromkeys(Grade, 0.03),
+}
+OPTIONS = {
+    Tolerance.ACCEL_FULL: "--tolerance-mg",
+    Tolerance.ACCEL_AXES: "--tolerance-mg",
+    Tolerance.GYRO_ROTATION: "--tolerance-deg",
+    Tolerance.GYRO_BIAS: "--tolerance-dph",
+    Tolerance.MAG: "--tolerance-ut",
+}
 
 
 @dataclass(frozen=True)
 class Acceptance:
     """How an estimate is judged: `strict` the pure chi-squared test at `significance`; else the
-    model-error floor against `tolerance` (None: the sensor's and model's default)."""
+    model-error floor against `tolerance` (the main residual's, in SI; None: the grade's
+    default) and, for the gyro's still poses, `bias_tolerance` (rad/s)."""
 
     strict: bool = False
     significance: float = 0.01
     tolerance: float | None = None
+    grade: Grade = Grade.CONSUMER
+    bias_tolerance: float | None = None
 
-    def tolerance_for(self, default: float) -> float:
-        """The tolerance in the sensor's SI unit. The accelerometer's defaults: 5 mg for the
-        gravity-norm model (consumer MEMS calibrated on a table leave 1-3 mg; more is a pose
-        that moved, drift or a wrong g), 17.5 mg (about 1 deg of pose error) for the six-face
-        model, which also counts how far each pose is from its face."""
-        return default if self.tolerance is None else self.tolerance
+    def _given(self, kind: Tolerance) -> float | None:
+        return self.bias_tolerance if kind is Tolerance.GYRO_BIAS else self.tolerance
+
+    def tolerance_for(self, kind: Tolerance, scale: float = 1.0) -> float:
+        """The tolerance in the sensor's SI unit (`scale`: what a fractional default is of)."""
+        given = self._given(kind)
+        return DEFAULTS[kind][self.grade] * scale if given is None else given
+
+    def source(self, kind: Tolerance) -> str:
+        """Where the tolerance came from, for the output: the option, or the grade's default."""
+        if self._given(kind) is not None:
+            return OPTIONS[kind]
+        return f"the {self.grade}-grade default; {OPTIONS[kind]}"
 
 
 def model_error_floor(

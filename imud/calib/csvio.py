@@ -20,17 +20,16 @@ a unit stated in a name is checked against the options.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import io
 import math
 import os
 import re
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Literal, Self
+from typing import Any, Literal, Self
 
 import numpy as np
 import numpy.typing as npt
@@ -127,8 +126,17 @@ def _scan(data: npt.NDArray[np.uint8]) -> _Lines:
         a = b
     if len(pieces) == 1:
         return pieces[0]
-    names = [f.name for f in dataclasses.fields(_Lines)]
-    return _Lines(*(np.concatenate([getattr(p, k) for p in pieces]) for k in names))
+
+    def joined(part: Callable[[_Lines], npt.NDArray[np.generic]]) -> Any:
+        return np.concatenate([part(p) for p in pieces])
+
+    return _Lines(
+        joined(lambda p: p.start),
+        joined(lambda p: p.stop),
+        joined(lambda p: p.end),
+        joined(lambda p: p.content),
+        joined(lambda p: p.commas),
+    )
 
 
 def _after_newline(data: npt.NDArray[np.uint8], b: int) -> int:
@@ -673,13 +681,19 @@ def _counted_problems(
         median = np.median(gyro, axis=0) * scale
         worst = int(np.argmax(np.abs(median)))
         if abs(float(median[worst])) > GYRO_ZERO_MAX_RAD_S:
+            per_deg = (
+                " or are the counts per deg/s (then add --gyro-units dps)?"
+                if units[1] == "rad/s"
+                and abs(float(median[worst])) * math.pi / 180 <= GYRO_ZERO_MAX_RAD_S
+                else ""
+            )
             out.append(
                 (
                     ("gx", "gy", "gz"),
                     f"with --gyro-counts the gyro's median on {'xyz'[worst]} is "
                     f"{float(median[worst]):.4g} rad/s, far from zero for a recording that is "
                     "mostly still: is the zero count right (--gyro-counts PER_UNIT,ZERO; "
-                    "offset-binary 16-bit parts read 0 at 32768)?",
+                    "offset-binary 16-bit parts read 0 at 32768)?" + per_deg,
                 )
             )
     return out

@@ -75,10 +75,10 @@ import numpy as np
 import numpy.typing as npt
 
 from imud import rotations as so3
-from imud.calib.acceptance import Acceptance, model_error_floor
+from imud.calib.acceptance import DPH, Acceptance, Tolerance, model_error_floor
 from imud.calib.estimate import AffineEstimate, Fit, Verdict
 from imud.calib.recording import Recording
-from imud.calib.stats import chi2_sf
+from imud.calib.stats import chi2_sf, f_sf
 from imud.calib.still import (
     CalibrationRefused,
     StillInterval,
@@ -556,7 +556,7 @@ def _unobservable(cov_c: F64) -> str | None:
             f"the gyro's scale about its {name} axis {where} is not determined (sigma "
             f"{100 * sigma:.0f} %): it only turned about that axis while the axis was vertical, "
             "which leaves gravity unchanged; turn it about that axis while it lies horizontal, or "
-            "make whole turns (a turntable) and pass --full-turns (full_turns=True)"
+            "make whole turns (a turntable) and pass --full-turns"
         )
     return (
         f"a combination of the gyro matrix is not determined (sigma {100 * sigma:.0f} %, mostly "
@@ -622,7 +622,22 @@ def _solve(
 # the model error accepted by default on each component of a rotation's gravity-direction
 # residual: 1 deg (a direction error up to 1.4 deg), what a pose placed by hand and a turn of a
 # few seconds at 100 Hz leave (a scale error of 0.5 % over a quarter turn is 0.45 deg)
-GYRO_ROTATION_TOLERANCE = math.radians(1.0)
+
+
+def _means_floor(v: F64, r: F64, n_mean: int, n_par: int, significance: float) -> float:
+    """The still poses' model-error floor, rad/s (with the latitude: their gyro means are rows
+    of the fit): added to each mean's variance, it makes their chi-squared its degrees of
+    freedom (less the `n_par` the means determine, the bias and heading). A bias that drifts
+    through the session (warm-up, temperature) scatters them beyond their noise."""
+    if n_mean == 0:
+        return 0.0
+    v_m, r_m = v[-n_mean:, -n_mean:], r[-n_mean:]
+
+    def chi2_at(s2: float) -> float:
+        return float(r_m @ np.linalg.solve(v_m + s2 * np.eye(n_mean), r_m))
+
+    rms = float(np.sqrt(np.mean(r_m**2)))
+    return model_error_floor(chi2_at, n_mean - n_par, rms, significance)
 
 
 def _rotation_floor(
@@ -648,6 +663,70 @@ def _rotation_floor(
 
     rms = float(np.sqrt(np.mean(r_rot**2))) if n_rot else 0.0
     return model_error_floor(chi2_at, dof, rms, significance)
+
+
+UNIT_FACTOR = 180.0 / math.pi  # deg/s read as rad/s turns 57 times too far
+
+
+def _check_turn_units(w: F64, dt: F64, starts: F64, u: F64, motions: list[_Motion]) -> None:
+    """Refuse a gyro in the wrong unit before fitting it: over the motions that tip gravity by
+    30 deg or more, the raw gyro's angle is at least gravity's (a turn about the vertical adds
+    angle gravity does not see) and at most a few times it; deg/s read as rad/s turns 57 times
+    too far, rad/s read as deg/s 57 times too short."""
+    angles = _integrate(np.eye(3), w, dt, starts).angle  # unwrapped: many turns stay many
+    tipped = [
+        (float(angles[s]), math.acos(float(np.clip(u[m.before] @ u[m.after], -1.0, 1.0))))
+        for s, m in enumerate(motions)
+    ]
+    ratios = [a / g for a, g in tipped if g >= math.radians(30.0)]
+    if len(ratios) < 3:
+        return
+    ratio = float(np.median(ratios))
+    if ratio > 20.0:
+        raise CalibrationRefused(
+            f"the gyro turned {ratio:.0f} times as far as gravity did over the recording's "
+            f"rotations (median of {len(ratios)}): a gyro in deg/s read as rad/s (--gyro-units "
+            f"dps), or counts per deg/s given as per rad/s (--gyro-counts); {UNIT_FACTOR:.1f} "
+            "is the factor between them"
+        )
+    if ratio < 1.0 / 8.0:
+        raise CalibrationRefused(
+            f"the gyro turned {1 / ratio:.0f} times less than gravity did over the recording's "
+            f"rotations (median of {len(ratios)}): a gyro in rad/s read as deg/s (--gyro-units "
+            f"rad/s), or counts per rad/s given as per deg/s (--gyro-counts); {UNIT_FACTOR:.1f} "
+            "is the factor between them"
+        )
+
+
+def _worst_rotation(
+    lin: _Linearised,
+    v: F64,
+    motions: list[_Motion],
+    full_turns: bool,
+    n_par: int,
+    significance: float,
+) -> tuple[int, float, float] | None:
+    """The rotation whose residual stands out from the others' (the one sample gap, bump or
+    slipped pose that a model-error floor fitted to all of them would absorb): each rotation's
+    chi-squared against the fitted noise and floor, per row, over the others' per row is
+    Fisher's F; tested over all rotations (Bonferroni). (index, ratio, p) of a refused one."""
+    z2, dims, row = [], [], 0
+    for m in motions:
+        d = 5 if full_turns and m.returns else 2
+        rows = slice(row, row + d)
+        z2.append(float(lin.r[rows] @ np.linalg.solve(v[rows, rows], lin.r[rows])))
+        dims.append(d)
+        row += d
+    if len(motions) < 4:
+        return None
+    w = int(np.argmax(np.array(z2) / np.array(dims)))
+    others = sum(z2) - z2[w]
+    nu = sum(dims) - dims[w] - n_par
+    if nu <= 0 or others <= 0:
+        return None
+    ratio = (z2[w] / dims[w]) / (others / nu)
+    p = min(1.0, f_sf(ratio, dims[w], nu) * len(motions))
+    return (w, ratio, p) if p < significance else None
 
 
 def fit_gyro_full(
@@ -719,6 +798,7 @@ def fit_gyro_full(
         ]
         partial = sum(m.returns for m in motions) - sum(whole)
         motions = [replace(m, returns=bool(t)) for m, t in zip(motions, whole, strict=True)]
+    _check_turn_units(raw - b, dt, starts, u, motions)
     n_turn = 3 * sum(m.returns for m in motions) if full_turns else 0
     if full_turns and n_turn == 0:
         raise CalibrationRefused(
@@ -740,6 +820,7 @@ def fit_gyro_full(
     prob = _Problem(raw, dt, starts, u, motions, durations, full_turns, means, earth)
     n_mean = 0 if means is None else means.size
     floor2 = 0.0  # the model error's variance on each rotation's residual, rad^2
+    floor_m2 = 0.0  # ... on each still pose's gyro mean (with the latitude), (rad/s)^2
 
     def noise(lin: _Linearised) -> F64:
         """The residuals' covariance: their noise and the model error found so far."""
@@ -747,6 +828,9 @@ def fit_gyro_full(
         if floor2 > 0:  # on the rotations' rows: hand motion, a pose that settled, drift
             n_rot = v.shape[0] - n_mean
             v[np.arange(n_rot), np.arange(n_rot)] += floor2
+        if floor_m2 > 0:  # on the poses' means: the bias drifting through the session
+            k = np.arange(v.shape[0] - n_mean, v.shape[0])
+            v[k, k] += floor_m2
         return v
 
     def measured(lin: _Linearised) -> F64:
@@ -791,15 +875,19 @@ def fit_gyro_full(
     x, lin, iterations = sol.x, sol.lin, sol.iterations
     # a model error on the rotations, estimated only where the noise alone is refused, and the
     # fit redone with it in the weights (imud/calib/acceptance.py)
-    floor = 0.0
+    floor = floor_m = 0.0
     for _ in range(10):
         if acceptance.strict:
             break
         mean_par = 0 if means is None else (4 if free_bias else 1)
         new = _rotation_floor(measured, lin, n_mean, len(cols), significance, mean_par)
-        if abs(new - floor) <= 1e-3 * max(new, 1e-300):
+        new_m = _means_floor(measured(lin), lin.r, n_mean, mean_par, significance)
+        if abs(new - floor) <= 1e-3 * max(new, 1e-300) and abs(new_m - floor_m) <= 1e-3 * max(
+            new_m, 1e-300
+        ):
             break
         floor, floor2 = new, new * new
+        floor_m, floor_m2 = new_m, new_m * new_m
         sol = _solve(lambda y: _linearise(prob, y), weights, x, cols)
         x, lin, iterations = sol.x, sol.lin, iterations + sol.iterations
     c, b = x[:9].reshape(3, 3).copy(), x[9:12].copy()
@@ -824,7 +912,8 @@ def fit_gyro_full(
     chi2 = float(lin.r @ np.linalg.solve(measured(lin), lin.r))  # against the noise alone
     dof = lin.r.shape[0] - len(cols)
     p_value = chi2_sf(chi2, dof) if dof > 0 else 1.0
-    tolerance = acceptance.tolerance_for(GYRO_ROTATION_TOLERANCE)
+    tolerance = acceptance.tolerance_for(Tolerance.GYRO_ROTATION)
+    named = acceptance.source(Tolerance.GYRO_ROTATION)
     notes_floor = ""
     # Earth's rotation against the noise: over the longest motion, and in a still pose's mean
     longest = float(np.max(durations))
@@ -849,16 +938,34 @@ def fit_gyro_full(
         reasons.append(
             f"the rotations hold a model error of {math.degrees(floor):.2f} deg each beyond "
             f"their noise ({math.degrees(math.sqrt(n2)):.3f} deg/sqrt(s)), more than the "
-            f"tolerance of {math.degrees(tolerance):.2g} deg (--tolerance-deg): a pose moved, "
+            f"tolerance of {math.degrees(tolerance):.2g} deg ({named}): a pose moved, "
             "the sensor was not still where it seemed, or samples were lost during a turn"
         )
     elif not acceptance.strict and floor > 0:
         notes_floor = (
             f"model error {math.degrees(floor):.2f} deg a rotation beyond the noise, within the "
-            f"tolerance of {math.degrees(tolerance):.2g} deg; the parameters' uncertainty "
-            "includes it"
+            f"tolerance of {math.degrees(tolerance):.2g} deg ({named}); the parameters' "
+            "uncertainty includes it"
         )
-    if p_value < significance and (acceptance.strict or pose_part is not None):
+    notes_means = ""
+    if means is not None and not acceptance.strict:
+        tolerance_m = acceptance.tolerance_for(Tolerance.GYRO_BIAS)
+        named_m = acceptance.source(Tolerance.GYRO_BIAS)
+        if floor_m > tolerance_m:
+            reasons.append(
+                f"the still poses' gyro means scatter by a model error of {floor_m / DPH:.0f} "
+                "deg/h beyond their noise and Earth's rotation, more than the tolerance of "
+                f"{tolerance_m / DPH:g} deg/h ({named_m}): the bias drifted between poses (let "
+                "the sensor warm up and its temperature settle), the gyro is sensitive to "
+                "gravity (g-sensitivity), or the latitude is wrong"
+            )
+        elif floor_m > 0:
+            notes_means = (
+                f"the still poses' gyro means: model error {floor_m / DPH:.0f} deg/h beyond "
+                f"their noise, within the tolerance of {tolerance_m / DPH:g} deg/h ({named_m}); "
+                "the bias's and heading's uncertainty includes it"
+            )
+    if p_value < significance and acceptance.strict:
         poses_fail = pose_part is not None and pose_part[2] < significance
         if pose_part is not None and poses_fail:
             chi2_m, dof_m, _ = pose_part
@@ -885,9 +992,23 @@ def fit_gyro_full(
                 + earth_hint
                 + "; capture again"
             )
+    outlier = _worst_rotation(lin, noise(lin), motions, full_turns, len(cols), significance)
+    if outlier is not None:
+        s_w, ratio, p_w = outlier
+        m = motions[s_w]
+        lost = " (samples are missing inside it)" if s_w in gaps else ""
+        reasons.append(
+            f"the rotation from pose {m.before + 1} to pose {m.after + 1} (at "
+            f"{intervals[m.before].t0_s + intervals[m.before].duration_s:.1f} s){lost} misses "
+            f"gravity {math.sqrt(ratio):.1f} times as far as the others do (F test, p {p_w:.1g} "
+            "over all rotations): samples lost or a bump during it, or a pose that moved; "
+            "capture that turn again, or cut it from the recording"
+        )
     ok = not reasons
     if ok and not acceptance.strict and floor > 0:
         reasons.append(notes_floor)
+    if ok and notes_means:
+        reasons.append(notes_means)
     if gaps:
         reasons.append(
             f"samples are missing inside {len(gaps)} rotation(s) (the first after pose "
@@ -953,6 +1074,7 @@ def fit_gyro_full(
             "p_value": p_value,
             "noise": math.sqrt(n2),
             "model_error": floor,  # rad, on each rotation's gravity direction
+            "model_error_means": floor_m,  # rad/s, on each still pose's gyro mean (latitude)
         },
         details,
     )

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from imud.calib.acceptance import MAG_TOLERANCE_FRACTION, Acceptance, model_error_floor
+from imud.calib.acceptance import Acceptance, Tolerance, model_error_floor
 from imud.calib.estimate import F64, AffineEstimate, Fit, Verdict
 from imud.calib.recording import Recording
 from imud.calib.stats import chi2_sf, t_sf_two_sided
@@ -66,8 +66,8 @@ noise have as many degrees of freedom as the fit has parameters."""
 
 WEAK_MATRIX_SIGMA = 0.03
 """A soft-iron element the readings leave this uncertain (1 sigma; the matrix is near the
-identity) is named undetermined; a bias is, beyond the tolerance (MAG_TOLERANCE_FRACTION of the
-field)."""
+identity) is named undetermined; a bias is, beyond the tolerance (a fraction of the field,
+Tolerance.MAG)."""
 
 MAX_AXIS_RATIO = 3.0
 """Largest ratio of the correction's longest to shortest axis. Real soft iron distorts by tens
@@ -526,7 +526,8 @@ def fit_mag(
     matrix = field * a
     residuals, u, c = _residual_stats(m, bias, matrix, field, sigma, noise_dof, 9)
     acceptance = acceptance or Acceptance(significance=P_REJECT)
-    tolerance = acceptance.tolerance_for(MAG_TOLERANCE_FRACTION * field)
+    tolerance = acceptance.tolerance_for(Tolerance.MAG, field)
+    named = acceptance.source(Tolerance.MAG)
     if shots:
         # the noise the residuals show, over their degrees of freedom: the weights were all
         # equal, so the fit stands and its covariance scales
@@ -538,7 +539,7 @@ def fit_mag(
         fixed = field_t is not None
         return _shots_result(
             rec, m, (bias, matrix, field, covariance), (sigma, noise_dof), residuals, u,
-            tolerance, fixed, acceptance.significance,
+            (tolerance, named), fixed, acceptance.significance,
         )  # fmt: skip
     floor = _floor(m, bias, matrix, field, sigma, residuals, c, acceptance.significance)
     residuals["model_error"] = floor
@@ -573,12 +574,12 @@ def fit_mag(
         reasons.append(
             f"the residuals hold a model error of {floor * 1e6:.3g} uT beyond the noise "
             f"({residuals['noise'] * 1e6:.3g} uT) {beyond}, more than the tolerance of "
-            f"{tolerance * 1e6:.3g} uT (--tolerance-ut): {advice}"
+            f"{tolerance * 1e6:.3g} uT ({named}): {advice}"
         )
     elif not acceptance.strict and floor > 0:
         reasons.append(
             f"model error {floor * 1e6:.3g} uT beyond the noise ({residuals['noise'] * 1e6:.3g}"
-            f" uT), within the tolerance of {tolerance * 1e6:.3g} uT"
+            f" uT), within the tolerance of {tolerance * 1e6:.3g} uT ({named})"
         )
     lower = 1.0 - p_value(residuals["chi2"], residuals["dof"], c)
     if lower < P_REJECT:
@@ -649,7 +650,7 @@ def _shots_result(
     noise: tuple[F64, F64],
     residuals: dict[str, float],
     u: F64,
-    tolerance: float,
+    tolerances: tuple[float, str],
     field_fixed: bool,
     significance: float,
 ) -> MagResult:
@@ -657,6 +658,7 @@ def _shots_result(
     of cells), and the residual RMS within the tolerance. solved: bias, matrix, field and
     covariance; noise: the per-axis sigma the residuals show and its degrees of freedom."""
     bias, matrix, field, covariance = solved
+    tolerance, named = tolerances
     sig = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     weak = [
         f"{name} (sigma {s * 1e6:.3g} uT)" if name.startswith("bias") else f"{name} (sigma {s:.2g})"
@@ -688,14 +690,14 @@ def _shots_result(
     elif rms > tolerance:
         reasons.append(
             f"a shot list's residuals are {rms * 1e6:.3g} uT RMS, more than the tolerance of "
-            f"{tolerance * 1e6:.3g} uT (--tolerance-ut): the worst is reading {worst + 1} "
+            f"{tolerance * 1e6:.3g} uT ({named}): the worst is reading {worst + 1} "
             "(line order); readings near iron or a current, or taken while moving"
         )
     accepted = not reasons
     if accepted:
         reasons.append(
             f"a shot list (one reading a pose): its noise is taken from the residuals, "
-            f"{rms * 1e6:.3g} uT RMS, within the tolerance of {tolerance * 1e6:.3g} uT"
+            f"{rms * 1e6:.3g} uT RMS, within the tolerance of {tolerance * 1e6:.3g} uT ({named})"
         )
     details: dict[str, Any] = {
         "scale": SCALE_FIXED if field_fixed else SCALE_FREE,

@@ -487,4 +487,12 @@ def run_gyro(
         except CalibrationRefused as e:  # the evaluation cannot be made; the fit stands
             report["holdout"] = {"unavailable": str(e)}
     update = _affine_update(est, rec, still, report, g)
-    return Outcome("gyro", est.verdict.accepted, list(est.verdict.reasons), report, update)
+    reasons = list(est.verdict.reasons)
+    if not est.verdict.accepted and d.get("motions") and (cf is None or cf.accel is None):
+        reasons.insert(
+            0,
+            "no accelerometer calibration in the file, so gravity's directions carry the raw "
+            "accelerometer's errors, which the rotations are checked against: calibrate accel "
+            "first, into the same --out, then the gyro",
+        )
+    return Outcome("gyro", est.verdict.accepted, reasons, report, update)

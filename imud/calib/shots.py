@@ -18,12 +18,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 import numpy.typing as npt
 
-from imud.calib.acceptance import (
-    ACCEL_AXES_TOLERANCE,
-    ACCEL_FULL_TOLERANCE,
-    MG,
-    Acceptance,
-)
+from imud.calib.acceptance import MG, Acceptance, Tolerance
 from imud.calib.estimate import Verdict
 from imud.calib.recording import Recording
 from imud.calib.still import CalibrationRefused, StillInterval
@@ -77,9 +72,8 @@ def fit_accel_shots(
         raise CalibrationRefused("the shot list's readings fit exactly: they cannot be real ones")
     second = fit_accel_intervals(shot_poses(rec, sigma), gravity, model, acceptance=acceptance)
     est = second.estimate
-    tolerance = acceptance.tolerance_for(
-        ACCEL_FULL_TOLERANCE if model == "full" else ACCEL_AXES_TOLERANCE
-    )
+    kind = Tolerance.ACCEL_FULL if model == "full" else Tolerance.ACCEL_AXES
+    tolerance = acceptance.tolerance_for(kind)
     reasons = [r for r in est.verdict.reasons if "model error" not in r]
     ok = est.verdict.accepted
     rms = float(est.fit.residuals["rms"])
@@ -90,12 +84,13 @@ def fit_accel_shots(
         reasons.insert(
             0,
             f"a shot list's residuals are {rms / MG:.2f} mg RMS, more than the tolerance of "
-            f"{tolerance / MG:g} mg (--tolerance-mg): the worst is reading {worst + 1} (line "
-            "order); a reading taken while moving, or the wrong gravity",
+            f"{tolerance / MG:g} mg ({acceptance.source(kind)}): the worst is reading "
+            f"{worst + 1} (line order); a reading taken while moving, or the wrong gravity",
         )
     else:
         reasons.append(
             f"a shot list (one reading a pose): its noise is taken from the residuals, "
-            f"{rms / MG:.2f} mg RMS, within the tolerance of {tolerance / MG:g} mg"
+            f"{rms / MG:.2f} mg RMS, within the tolerance of {tolerance / MG:g} mg "
+            f"({acceptance.source(kind)})"
         )
     return replace(second, estimate=replace(est, verdict=Verdict(ok, tuple(reasons))))

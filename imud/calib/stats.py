@@ -99,3 +99,14 @@ def t_sf_two_sided(t: float, dof: float) -> float:
     if not math.isfinite(t):
         return 0.0
     return _beta_inc(0.5 * dof, 0.5, dof / (dof + t * t))
+
+
+def f_sf(f: float, d1: float, d2: float) -> float:
+    """P(F >= f) for F ~ Fisher's F with (d1, d2) degrees of freedom."""
+    if d1 <= 0 or d2 <= 0:
+        raise ValueError(f"the F distribution needs positive degrees of freedom, got {d1}, {d2}")
+    if f <= 0:
+        return 1.0
+    if not math.isfinite(f):
+        return 0.0
+    return _beta_inc(0.5 * d2, 0.5 * d1, d2 / (d2 + d1 * f))

@@ -271,6 +271,9 @@ class ChipSpec(Generic[C]):
     # the device's white noise at its configured settings, for its ROS 2 covariances. None: not
     # known, and the covariances say so (all zero, REP-145)
     noise: Callable[[C], NoiseFigures] | None = None
+    # the sensor's class, which sets `imud calibrate`'s default tolerances (imud.calib.
+    # acceptance.Grade): "consumer", "industrial" or "tactical"
+    grade: str = "consumer"
 
 
 def register_links(links: Sequence[Link]) -> list[RegisterDevice]:

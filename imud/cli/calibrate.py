@@ -309,6 +309,21 @@ class Job:
             return rec
         return live(self)
 
+    def grade(self) -> Any:
+        """The sensor's grade for the default tolerances: --grade, else the chip's, else
+        consumer (imud.calib.acceptance.Grade)."""
+        from imud.calib.acceptance import Grade
+
+        if self.o.get("grade"):
+            return Grade(self.o["grade"])
+        if self.chip:
+            from imud import registry
+
+            spec = registry.CHIPS.get(self.chip)
+            if spec is not None:
+                return Grade(spec.grade)
+        return Grade.CONSUMER
+
     def _counts(self, sensor: str) -> tuple[float, float] | None:
         """--accel-counts / --gyro-counts, parsed (a bad one is a usage error, said)."""
         from imud.calib.imutk import ImuTkError, parse_counts
@@ -478,6 +493,15 @@ def _prepared(job: Job, rec: Any) -> tuple[Any, list[str]]:
     return (rec, []) if job.out is None else compensate(rec, job.existing())
 
 
+def _grade(f: Any) -> Any:
+    return click.option(
+        "--grade",
+        type=click.Choice(["consumer", "industrial", "tactical"]),
+        help="the sensor's class, which sets the default tolerances (default: the chip's own, "
+        "else consumer; docs/calibration.md)",
+    )(f)
+
+
 def _significance(f: Any) -> Any:
     return click.option(
         "--significance",
@@ -538,9 +562,11 @@ def _gravity(job: Job, gravity: float | None, lat: float | None, h: float | None
 @click.option(
     "--tolerance-mg",
     type=click.FloatRange(min=0.0, max=1000.0),
-    help="the model error accepted beyond the noise, mg per residual component (default 5 "
-    "for --model full; 17.5 per axis for axes: a pose up to about 1.7 deg off its face)",
+    help="the model error accepted beyond the noise, mg per residual component (default for "
+    "--model full by --grade: 5 consumer, 2 industrial, 1 tactical; 17.5 per axis for axes: a "
+    "pose up to about 1.7 deg off its face)",
 )
+@_grade
 @click.option(
     "--holdout",
     is_flag=True,
@@ -594,7 +620,7 @@ def accel(
     rec, notes = _prepared(job, rec)
     try:
         tolerance = None if tolerance_mg is None else tolerance_mg * MG
-        acceptance = Acceptance(strict, significance, tolerance)
+        acceptance = Acceptance(strict, significance, tolerance, job.grade())
         compare = _compare_file(compare_path, job.as_json)
         outcome = run_accel(
             rec,
@@ -640,6 +666,14 @@ def accel(
     "gravity direction, degrees (default 1: a direction error up to 1.4 deg)",
 )
 @click.option(
+    "--tolerance-dph",
+    type=click.FloatRange(min=0.0, max=36000.0),
+    help="with --latitude: the scatter of the still poses' gyro means accepted beyond their "
+    "noise (the bias drifting through the session), deg/h (default by --grade: 360 consumer, "
+    "100 industrial, 10 tactical)",
+)
+@_grade
+@click.option(
     "--holdout",
     is_flag=True,
     help="also judge the fit on rotations it did not see (the recording's two halves, each "
@@ -660,6 +694,7 @@ def gyro(
     significance: float,
     strict: bool,
     tolerance_deg: float | None,
+    tolerance_dph: float | None,
     holdout: bool,
     compare_path: str | None,
     **opts: Any,
@@ -684,7 +719,8 @@ def gyro(
         from imud.calib.acceptance import Acceptance
 
         tolerance = None if tolerance_deg is None else math.radians(tolerance_deg)
-        acceptance = Acceptance(strict, significance, tolerance)
+        bias_tolerance = None if tolerance_dph is None else math.radians(tolerance_dph) / 3600
+        acceptance = Acceptance(strict, significance, tolerance, job.grade(), bias_tolerance)
         compare = _compare_file(compare_path, job.as_json, "gyro")
         outcome = run_gyro(
             rec, full_turns, cf, min_still, latitude, significance, acceptance, holdout, compare
@@ -739,6 +775,7 @@ def temp(sensor: str, max_order: int, **opts: Any) -> None:
     help="the model error accepted beyond the noise, uT (default 3 % of the fitted field, "
     "about 1.7 deg of heading)",
 )
+@_grade
 def mag(field_ut: float | None, strict: bool, tolerance_ut: float | None, **opts: Any) -> None:
     """Magnetometer hard and soft iron (full ellipsoid) from a recording rotated through many
     directions."""
@@ -756,7 +793,7 @@ def mag(field_ut: float | None, strict: bool, tolerance_ut: float | None, **opts
         from imud.calib.acceptance import Acceptance
 
         tolerance = None if tolerance_ut is None else tolerance_ut * 1e-6
-        acceptance = Acceptance(strict, 0.01, tolerance)
+        acceptance = Acceptance(strict, 0.01, tolerance, job.grade())
         field = None if field_ut is None else field_ut * 1e-6
         outcome = run_mag(rec, field, acceptance, shots=bool(opts.get("shots")))
     except CalibrationRefused as e:

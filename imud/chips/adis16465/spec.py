@@ -53,4 +53,5 @@ SPEC = ChipSpec(
     raw_spi=True,
     counters=("checksum_errors",),  # bursts whose checksum failed (of garbled_transfers)
     noise=_noise,
+    grade="industrial",  # ADIS16465: 2 deg/h in-run bias stability (datasheet)
 )

@@ -57,4 +57,5 @@ SPEC = ChipSpec(
     channels=Channel.ACCEL | Channel.GYRO | Channel.TEMPERATURE | Channel.INCLINATION,
     counters=("crc_errors",),  # datagrams whose CRC failed (of garbled_transfers)
     noise=_noise,
+    grade="tactical",  # STIM300: 0.3-0.5 deg/h gyro bias instability (datasheet)
 )
