@@ -24,7 +24,7 @@ from imud.calib.acceptance import MG, Acceptance
 from imud.calib.file import CalibrationFile, read_calibration
 from imud.calib.procedure import run_accel, run_gyro, run_mag
 from imud.calib.recording import Recording
-from imud.calib.still import find_still, interval_stats
+from imud.calib.still import CalibrationRefused, find_still, interval_stats
 
 DATA = Path(__file__).parent / "data" / "xsens"
 G = 9.81744  # what imu_tk's example used for this recording
@@ -295,3 +295,45 @@ def test_the_authors_file_as_it_is_through_the_cli(tmp_path: Path) -> None:
     p = np.loadtxt(QMC / "parameters_mag.csv")
     theirs = -np.linalg.solve(p[:9].reshape(3, 3), p[9:])
     assert np.all(np.abs(centre - theirs) < 20.0), (centre, theirs)
+
+
+def test_one_rotation_with_lost_samples_is_named_not_absorbed(
+    xsens: tuple[Recording, np.ndarray],
+) -> None:
+    """0.3 s cut out of the turn between the 5th and 6th poses (a logger that dropped a USB
+    packet): that rotation misses gravity by degrees where the others miss by a tenth. A floor
+    fitted to all rotations would absorb it and accept; the F test against the others names
+    it."""
+    rec, _ = xsens
+    poses = find_still(rec)
+    mid = (poses[4].end + poses[5].start) // 2
+    keep = np.ones(rec.n, bool)
+    keep[mid - 15 : mid + 15] = False
+    cut = Recording(rec.t_ns[keep], rec.accel[keep], rec.gyro[keep], source="gap")
+    cf = run_accel(rec, G, "full").update(CalibrationFile(), "xsens")
+    assert run_gyro(rec, False, cf).accepted  # the whole recording: no rotation stands out
+    out = run_gyro(cut, False, cf)
+    assert not out.accepted
+    assert any("from pose 5 to pose 6" in r and "samples are missing" in r for r in out.reasons)
+
+
+@pytest.mark.parametrize(("factor", "says"), [(180 / np.pi, "as far"), (np.pi / 180, "less")])
+def test_a_gyro_in_the_wrong_unit_is_named(
+    xsens: tuple[Recording, np.ndarray], factor: float, says: str
+) -> None:
+    """deg/s read as rad/s (57 times too far) or the reverse: refused as a unit error before
+    any fit, not as a pose that moved."""
+    rec, _ = xsens
+    cf = run_accel(rec, G, "full").update(CalibrationFile(), "xsens")
+    wrong = Recording(rec.t_ns, rec.accel, rec.gyro * factor, source="units")
+    with pytest.raises(CalibrationRefused, match=f"turned [0-9]+ times {says}.*--gyro-units"):
+        run_gyro(wrong, False, cf)
+
+
+def test_without_an_accelerometer_calibration_the_refusal_says_so_first(
+    xsens: tuple[Recording, np.ndarray],
+) -> None:
+    rec, _ = xsens
+    out = run_gyro(rec, False, None)
+    assert not out.accepted
+    assert out.reasons[0].startswith("no accelerometer calibration in the file")

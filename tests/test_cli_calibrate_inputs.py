@@ -148,3 +148,24 @@ def test_a_plot_that_cannot_be_drawn_stops_before_anything_is_written(
     assert r.returncode == 2 and says in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        ((), "5 mg (the consumer-grade default; --tolerance-mg)"),
+        (("--chip", "adis16465"), "2 mg (the industrial-grade default; --tolerance-mg)"),
+        (("--chip", "stim300"), "1 mg (the tactical-grade default; --tolerance-mg)"),
+        (("--chip", "stim300", "--grade", "consumer"), "5 mg (the consumer-grade default"),
+        (("--tolerance-mg", "3"), "3 mg (--tolerance-mg)"),
+    ],
+)
+def test_the_tolerance_is_the_grades_and_named(
+    counts_csv: Path, args: tuple[str, ...], says: str
+) -> None:
+    """The chip says its grade (an ADIS16465 is industrial, a STIM300 tactical), --grade
+    overrides it, and the output names which tolerance judged the fit."""
+    r = imud("accel", "--from", str(counts_csv), *COUNTS, "--gravity", str(G), "--dry-run",
+             *args)  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert says in " ".join(r.stdout.split()), r.stdout
