@@ -77,6 +77,21 @@ def test_bias_needs_a_second_and_a_steady_temperature() -> None:
     assert "temperature changed by +0.60 degC" in " ".join(est.verdict.reasons)
 
 
+def test_a_still_gyro_alone_gives_its_bias() -> None:
+    """A recording of the gyro only (no accelerometer columns) still gives the bias."""
+    from imud.calib.procedure import run_gyro
+
+    rec = session([], seed=6, fs=200.0, still_s=60.0, gyro_b=B_G, gyro_n=N).rec
+    alone = Recording(rec.t_ns, np.full_like(rec.accel, np.nan), rec.gyro, source="gyro only")
+    out = run_gyro(alone, False, None)
+    assert out.accepted, out.reasons
+    sigma = np.sqrt(np.diag(np.array(out.report["covariance"])))[:3]
+    assert np.all(np.abs(np.array(out.report["bias"]) - B_G) < 4 * sigma)
+    moved = with_bump(alone, 20.0, 20.5)
+    with pytest.raises(CalibrationRefused, match="no accelerometer columns"):
+        run_gyro(moved, False, None)
+
+
 def test_cumulative_product_is_the_running_product() -> None:
     rng = np.random.default_rng(5)
     e = rotation(rng.normal(0.0, 0.3, (3001, 3)))

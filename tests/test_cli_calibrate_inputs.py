@@ -169,3 +169,23 @@ def test_the_tolerance_is_the_grades_and_named(
              *args)  # fmt: skip
     assert r.returncode == 0, r.stdout + r.stderr
     assert says in " ".join(r.stdout.split()), r.stdout
+
+
+def test_a_gyro_only_still_file_gives_the_bias(tmp_path: Path) -> None:
+    """timestamp and gyro columns alone (the Xsens's first 50 s, still): the bias is their
+    mean; the whole recording, which moves, needs the accelerometer and says so."""
+    rec, _ = recording()
+    head = tmp_path / "gyro_still.csv"
+    rows = [f"{rec.t_ns[k]},{','.join(f'{v:.7f}' for v in rec.gyro[k])}" for k in range(5000)]
+    head.write_text("timestamp_ns,gx,gy,gz\n" + "\n".join(rows) + "\n")
+    r = imud("gyro", "--from", str(head), "--dry-run", "--json")
+    assert r.returncode == 0, r.stdout + r.stderr
+    out = json.loads(r.stdout)
+    assert out["accepted"] is True
+    want = np.array([[float(v) for v in row.split(",")[1:]] for row in rows]).mean(axis=0)
+    assert np.allclose(out["bias"], want, atol=1e-9)
+    whole = tmp_path / "gyro_all.csv"
+    rows = [f"{rec.t_ns[k]},{','.join(f'{v:.7f}' for v in rec.gyro[k])}" for k in range(rec.n)]
+    whole.write_text("timestamp_ns,gx,gy,gz\n" + "\n".join(rows) + "\n")
+    r = imud("gyro", "--from", str(whole), "--dry-run")
+    assert r.returncode == 3 and "no accelerometer columns" in r.stderr, r.stderr

@@ -107,7 +107,10 @@ def _latitude_rad(latitude_deg: float) -> float:
 
 
 def fit_gyro_bias(
-    rec: Recording, latitude_deg: float | None = None, significance: float = 0.01
+    rec: Recording,
+    latitude_deg: float | None = None,
+    significance: float = 0.01,
+    acceptance: Acceptance | None = None,
 ) -> AffineEstimate:
     """The gyro bias (procedure "gyro-bias", matrix identity) from a still recording.
 
@@ -119,9 +122,20 @@ def fit_gyro_bias(
     by more than 0.2 degC, or when a sample hit full scale. Earth's rotation is inside the bias;
     with latitude_deg its vertical part (Omega sin(latitude) along the measured up) is removed,
     its horizontal part stays (details "earth_removed_rad_s", "earth_remaining_rad_s"; see the
-    module docstring)."""
+    module docstring). The bias's covariance comes from block averaging, so a bias that wanders
+    (flicker, warm-up) widens it rather than failing the segment test, which catches what that
+    misses (a wobble within the segments' span). A recording without the accelerometer gives the
+    bias as well; Earth's vertical part then cannot be placed."""
+    if acceptance is not None:
+        significance = acceptance.significance
     if rec.n < 2:
         raise CalibrationRefused(f"{rec.source or 'the recording'} has no samples")
+    if latitude_deg is not None and np.isnan(rec.accel).all():
+        raise CalibrationRefused(
+            f"{rec.source or 'the recording'} has no accelerometer columns: --latitude places "
+            "Earth's rotation along gravity's direction, which only they give; record the "
+            "accelerometer too, or leave --latitude out"
+        )
     duration = float(rec.t_ns[-1] - rec.t_ns[0]) * 1e-9
     if duration < MIN_BIAS_S:
         raise CalibrationRefused(

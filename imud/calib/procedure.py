@@ -432,17 +432,28 @@ def run_gyro(
     one, corrects the gravity directions first, so the gyro lands in the calibrated frame.
     With the latitude, Earth's rotation is modelled (imud/calib/gyro.py)."""
     from imud.calib.gyro import fit_gyro_bias
-
-    check_recording(rec, ("accel", "gyro"))  # the accelerometer gives the gravity directions
     from imud.calib.still import check_still, find_still, interval_stats
 
+    gyro_only = bool(np.isnan(rec.accel).all())  # a still capture needs nothing more
+    check_recording(rec, ("gyro",) if gyro_only else ("accel", "gyro"))
     notes: list[str] = []
-    rec = _gravity_corrected(rec, cf, notes)
+    rec = rec if gyro_only else _gravity_corrected(rec, cf, notes)
     original = rec  # the accelerometer corrected, the gyro as recorded
     gsens = None
     if check_still(rec).still:
-        est = fit_gyro_bias(rec, latitude_deg, significance)
+        est = fit_gyro_bias(rec, latitude_deg, significance, acceptance)
         still = [interval_stats(rec, 0, rec.n)]
+        if gyro_only:
+            notes.append(
+                "no accelerometer columns: the bias alone, from the gyro (a slow turn during "
+                "the capture cannot be seen without gravity's direction, so keep it on a table)"
+            )
+    elif gyro_only:
+        raise CalibrationRefused(
+            f"{rec.source or 'the recording'} moved and has no accelerometer columns: the "
+            "gyro's matrix is fitted against gravity's directions between still poses, which "
+            "only the accelerometer gives; record it too (or record the gyro still for its bias)"
+        )
     else:
         if cf is None or cf.accel is None:
             notes.append(

@@ -248,6 +248,11 @@ class Activity:
         w = min(window_len(rec.rate_hz), rec.n // 2)
         hop = max(1, w // WINDOW_HOPS)
         blocks = max(2, w // hop)
+        if np.isnan(rec.accel).all():  # a gyro-only recording: the gyro's own floor alone
+            vg = _window_var(rec.gyro, hop, blocks)
+            g_in, g_out = _thresholds(vg)
+            still = _hysteresis(vg, g_in, g_out)
+            return cls(hop, hop * blocks, still, np.zeros_like(vg), vg, math.inf, g_out)
         va = _window_var(rec.accel, hop, blocks)
         a_in, a_out = _thresholds(va)
         still = _hysteresis(va, a_in, a_out)
@@ -440,6 +445,8 @@ def check_still(rec: Recording) -> StillCheck:
             f"the sensor moved at {_spans_text(rec, spans)} (variance far above the recording's "
             "own noise floor): record again without touching it, or cut the still part out",
         )
+    if np.isnan(rec.accel).all():  # no accelerometer: a slow turn cannot be seen (docstring)
+        return StillCheck(True, (), "")
     tenth = max(rec.n // 10, 2)
     m0, c0 = mean_and_cov(rec.accel[:tenth])
     m1, c1 = mean_and_cov(rec.accel[-tenth:])

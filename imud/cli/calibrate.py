@@ -186,7 +186,7 @@ def calibrate() -> None:
 
 
 # the columns each procedure reads: the rest of a recording may be absent
-_NEEDS = {"mag": ("mag",), "accel": ("accel",)}
+_NEEDS = {"mag": ("mag",), "accel": ("accel",), "gyro": ("gyro",)}
 
 
 class Job:
