@@ -147,3 +147,47 @@ def test_the_format_named_and_a_wrong_name_told(pair: tuple[Path, Path], tmp_pat
     r = imud("calibrate", "accel", "--from", str(csv), "--format", "imu_tk", *src)
     assert r.returncode == 2 and "rec.csv:1: 1 fields; imu_tk's files have four" in r.stderr
     assert "Traceback" not in r.stderr
+
+
+REF = Path(__file__).parent / "data" / "xsens" / "imu_tk_ref"
+
+
+def test_compare_takes_imu_tks_own_result(pair: tuple[Path, Path], tmp_path: Path) -> None:
+    """--compare on imu_tk's calibration files as its program wrote them (T K B, of counts),
+    applied to the nominal-scale readings through --accel-counts/--gyro-counts: the accel
+    figure equals imu_tk's file applied to the counts by the test itself, on the same windows,
+    and imud's held-out fit is no worse than imu_tk's (which saw them)."""
+    from imud.calib.still import find_still
+    from tests.test_calib_real import G, imu_tk_accel, recording
+
+    acc, gyr = pair
+    src = ["--from", str(acc), "--gyro-from", str(gyr), *COUNTS, "--gravity", str(G)]
+    r = imud("calibrate", "accel", *src, "--dry-run", "--json",
+             "--compare", str(REF / "test_imu_acc.calib"))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    rms = json.loads(r.stdout)["holdout"]["rms"]
+    rec, counts = recording()
+    tk, tk_b = imu_tk_accel()
+    err = []
+    for p in find_still(rec):
+        mid = (p.start + p.end) // 2
+        for a, b in ((p.start, mid), (mid, p.end)):
+            err.append(np.linalg.norm(tk @ (counts[a:b].mean(axis=0) - tk_b)) - G)
+    assert rms["compare"] == pytest.approx(float(np.sqrt(np.mean(np.square(err)))), rel=1e-6)
+    assert rms["calibrated"] <= rms["compare"]
+    out = tmp_path / "x.cal.toml"
+    assert imud("calibrate", "accel", *src, "--out", str(out)).returncode == 0
+    r = imud("calibrate", "gyro", "--from", str(acc), "--gyro-from", str(gyr), *COUNTS,
+             "--out", str(out), "--dry-run", "--json",
+             "--compare", str(REF / "test_imu_gyro.calib"))  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    rms = json.loads(r.stdout)["holdout"]["rms"]
+    assert rms["calibrated"] <= rms["compare"]  # imud's, held out, against imu_tk's
+    # an SI recording has no counts to apply imu_tk's file through: told, not misread
+    si = tmp_path / "si.csv"
+    rows = [f"{rec.t_ns[k]},{','.join(f'{v:.6f}' for v in (*rec.accel[k], *rec.gyro[k]))}"
+            for k in range(rec.n)]  # fmt: skip
+    si.write_text("timestamp_ns,ax,ay,az,gx,gy,gz\n" + "\n".join(rows) + "\n")
+    r = imud("calibrate", "accel", "--from", str(si), "--dry-run",
+             "--compare", str(REF / "test_imu_acc.calib"))  # fmt: skip
+    assert r.returncode == 2 and "give --accel-counts" in r.stderr, r.stderr

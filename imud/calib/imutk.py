@@ -106,6 +106,29 @@ def _read(path: Path) -> tuple[F64, npt.NDArray[np.int64]]:
     return out, lines
 
 
+def is_imu_tk_calibration(path: Path) -> bool:
+    """imu_tk's calibration file: 21 numbers (T 3x3, K 3x3, B 3), no TOML."""
+    try:
+        words = path.read_text(errors="replace").split()
+    except OSError:
+        return False
+    return len(words) == 21 and all(map(_number, words))
+
+
+def read_imu_tk_calibration(
+    path: Path, counts: tuple[float, float], unit_si: float = 1.0
+) -> tuple[F64, F64]:
+    """imu_tk's calibration (calibrated = T K (counts - B), in SI) as imud's affine model of the
+    nominal-scale reading x = (counts - zero) / per_unit * unit_si: calibrated = C (x - b) with
+    C = T K per_unit / unit_si and b = (B - zero) / per_unit * unit_si. Returns (C, b)."""
+    v = np.array(path.read_text().split(), dtype=np.float64)
+    t, k, b = v[:9].reshape(3, 3), v[9:18].reshape(3, 3), v[18:21]
+    per, zero = counts
+    matrix: F64 = t @ k * (per / unit_si)
+    bias: F64 = (b - zero) / per * unit_si
+    return matrix, bias
+
+
 def read_imu_tk(
     accel_path: Path,
     gyro_path: Path,

@@ -463,11 +463,34 @@ def _plot(kind: str, outcome: Any, path: Path, as_json: bool) -> None:
         _fail(f"--plot {path}: not drawn ({e}); no calibration written", EXIT_USAGE, as_json)
 
 
-def _compare_file(path: str | None, as_json: bool, sensor: str = "accel") -> Any:
-    """The calibration file --compare names, read (a bad one is a usage error, said)."""
+def _compare_file(
+    path: str | None, as_json: bool, sensor: str = "accel", job: Job | None = None
+) -> Any:
+    """The calibration file --compare names, read (a bad one is a usage error, said): imud's,
+    or imu_tk's (T K B in counts), applied through --accel-counts / --gyro-counts."""
     if path is None:
         return None
-    from imud.calib.file import CalibrationError, read_calibration
+    from imud.calib.file import CalibrationError, CalibrationFile, SensorTable, read_calibration
+    from imud.calib.imutk import is_imu_tk_calibration, read_imu_tk_calibration
+
+    if is_imu_tk_calibration(Path(path)):
+        counts = None if job is None else job._counts(sensor)
+        if job is None or counts is None:
+            _fail(
+                f"--compare {path} is imu_tk's calibration (of counts): give --{sensor}-counts "
+                "PER_UNIT,ZERO, the nominal scale the recording was read with, so it applies",
+                EXIT_USAGE,
+                as_json,
+            )
+        units = job.o.get(f"{sensor}_units")
+        unit_si = {"g": job.o.get("gravity") or 9.80665, "dps": math.pi / 180}.get(units or "", 1.0)
+        matrix, bias = read_imu_tk_calibration(Path(path), counts, float(unit_si))
+        table = SensorTable(
+            bias=tuple(bias.tolist()),
+            matrix=tuple(tuple(r) for r in matrix.tolist()),
+            source=f"imu_tk: {path}",
+        )
+        return CalibrationFile(**{sensor: table})
 
     try:
         cf = read_calibration(Path(path))
@@ -621,7 +644,7 @@ def accel(
     try:
         tolerance = None if tolerance_mg is None else tolerance_mg * MG
         acceptance = Acceptance(strict, significance, tolerance, job.grade())
-        compare = _compare_file(compare_path, job.as_json)
+        compare = _compare_file(compare_path, job.as_json, "accel", job)
         outcome = run_accel(
             rec,
             g,
@@ -721,7 +744,7 @@ def gyro(
         tolerance = None if tolerance_deg is None else math.radians(tolerance_deg)
         bias_tolerance = None if tolerance_dph is None else math.radians(tolerance_dph) / 3600
         acceptance = Acceptance(strict, significance, tolerance, job.grade(), bias_tolerance)
-        compare = _compare_file(compare_path, job.as_json, "gyro")
+        compare = _compare_file(compare_path, job.as_json, "gyro", job)
         outcome = run_gyro(
             rec, full_turns, cf, min_still, latitude, significance, acceptance, holdout, compare
         )
