@@ -187,6 +187,7 @@ def calibrate() -> None:
 
 # the columns each procedure reads: the rest of a recording may be absent
 _NEEDS = {"mag": ("mag",), "accel": ("accel",), "gyro": ("gyro",)}
+_HOLDS = {"mag": "magnetometer", "temp": "temperature"}
 
 
 class Job:
@@ -261,6 +262,21 @@ class Job:
         fmt = self.o.get("source_format", "auto")
         if self.o["from_csv"] is not None:
             looks = is_imu_tk(Path(self.o["from_csv"]))
+            if looks and self.kind in ("mag", "temp") and fmt != "csv":
+                _fail(
+                    f"{self.o['from_csv']} is imu_tk's format (t x y z counts of an "
+                    f"accelerometer or a gyro): it holds no {_HOLDS[self.kind]}; give a CSV "
+                    "recording with those columns (docs/recording-csv.md)",
+                    EXIT_USAGE,
+                    self.as_json,
+                )
+            if fmt == "imu_tk" and not looks:
+                _fail(
+                    f"--format imu_tk, but {self.o['from_csv']} is not imu_tk's format (its first "
+                    "line is not four numbers t x y z): give --format csv (or auto)",
+                    EXIT_USAGE,
+                    self.as_json,
+                )
             if fmt == "imu_tk" or (fmt == "auto" and looks):
                 return self._imu_tk(Path(self.o["from_csv"]))
             if fmt == "csv" and looks:
