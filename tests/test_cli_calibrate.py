@@ -317,3 +317,14 @@ def test_a_shot_list_one_reading_a_pose(tmp_path: Path) -> None:
     assert any("shot list" in x for x in out["reasons"])
     r = imud("calibrate", "accel", "--from", str(path), "--dry-run")  # not said: a stream
     assert r.returncode in (2, 3) and "Traceback" not in r.stderr
+    assert "needs --shots" in r.stderr, r.stderr
+    for extra, says in (
+        (("--strict",), "drop --strict"),
+        (("--holdout",), "drop them"),
+    ):
+        r = imud("calibrate", "accel", *src, "--dry-run", *extra)
+        assert r.returncode == 2 and says in r.stderr, r.stderr
+    r = imud("calibrate", "gyro", *src, "--dry-run")
+    assert r.returncode == 2 and "gyro needs a stream" in r.stderr, r.stderr
+    r = imud("calibrate", "accel", *src, "--dry-run")
+    assert "reading (data row)" in r.stdout and " at " not in r.stdout.split("per pose")[1]

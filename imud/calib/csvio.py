@@ -395,7 +395,8 @@ def _columns(
         if "timestamp_ns" in missing:
             msg += (
                 "; the time may be any column named timestamp_ns, time, timestamp or t (with "
-                "--time-units), or a sample counter such as n_samples (with --rate)"
+                "--time-units), or a sample counter such as n_samples (with --rate); a shot "
+                "list (one reading a still pose, no time) needs --shots"
             )
         used = {c.field for c in out.values()}
         guess = _suggest([lb for i, lb in enumerate(labels) if i not in used], set(out))

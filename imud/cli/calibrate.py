@@ -325,6 +325,29 @@ class Job:
             return rec
         return live(self)
 
+    def check_shots(self, strict: bool, holdout: bool) -> None:
+        """--shots with what it cannot go with: a usage error, said before any work."""
+        if not self.o.get("shots"):
+            return
+        why = None
+        if self.kind not in ("accel", "mag"):
+            why = f"--shots: a shot list calibrates accel or mag; {self.kind} needs a stream"
+        elif self.o["from_csv"] is None:
+            why = "--shots reads a file (--from): a live capture is a stream"
+        elif strict:
+            why = (
+                "--strict tests the residuals against the noise within each pose, and a shot list "
+                "has one reading a pose: drop --strict (the residuals' RMS is judged against the "
+                "tolerance)"
+            )
+        elif holdout:
+            why = (
+                "--holdout/--compare need still windows to split, and a shot list has one reading "
+                "a pose: drop them"
+            )
+        if why is not None:
+            _fail(why, EXIT_USAGE, self.as_json)
+
     def grade(self) -> Any:
         """The sensor's grade for the default tolerances: --grade, else the chip's, else
         consumer (imud.calib.acceptance.Grade)."""
@@ -640,6 +663,7 @@ def accel(
     from imud.calib.still import CalibrationRefused
 
     job = Job("accel", opts)
+    job.check_shots(strict, holdout or compare_path is not None)
     g, note = _gravity(job, gravity, latitude, height)
     from imud.cli.calibrate_live import capture_poses
 
@@ -744,6 +768,7 @@ def gyro(
     from imud.calib.still import CalibrationRefused
 
     job = Job("gyro", opts)
+    job.check_shots(False, False)
     from imud.cli.calibrate_live import capture_for
 
     def more(r: Any) -> str | None:
@@ -782,6 +807,7 @@ def temp(sensor: str, max_order: int, **opts: Any) -> None:
     from imud.calib.still import CalibrationRefused
 
     job = Job("temp", opts)
+    job.check_shots(False, False)
     from imud.cli.calibrate_live import capture_for
 
     rec = job.recording(lambda j: capture_for(j, 600.0, show_temperature=True))
@@ -822,6 +848,7 @@ def mag(field_ut: float | None, strict: bool, tolerance_ut: float | None, **opts
     from imud.calib.still import CalibrationRefused
 
     job = Job("mag", opts)
+    job.check_shots(strict, False)
     from imud.cli.calibrate_live import capture_for
 
     rec = job.recording(lambda j: capture_for(j, 90.0, need_mag=True))

@@ -120,12 +120,15 @@ def show(report: dict[str, Any], console: Console | None = None) -> None:
                 f"{m['angle_deg']:7.1f} {m['residual_deg']:8.4f}"
             )
         poses = [p for p in r.get("poses", []) if isinstance(p, dict) and "residual" in p]
+        shots = bool(poses) and all(p.get("duration_s") == 0.0 for p in poses)
         if poses:
-            con.print("  per pose: start s, held s, residual |C(m-b)| - g (its sigma), mm/s^2")
+            where = "reading (data row)" if shots else "start s, held s"
+            con.print(f"  per pose: {where}, residual |C(m-b)| - g (its sigma), mm/s^2")
         for k, p in enumerate(poses[:40]):
             t0, dur = p.get("t0_s", float("nan")), p.get("duration_s", float("nan"))
+            at = "" if shots else f" at {t0:7.1f} for {dur:5.1f}"
             con.print(
-                f"    {k + 1:2d} at {t0:7.1f} for {dur:5.1f}: {p['residual'] * 1e3:+7.2f} "
+                f"    {k + 1:2d}{at}: {p['residual'] * 1e3:+7.2f} "
                 f"({p.get('sigma', float('nan')) * 1e3:.2f})"
             )
     ok = report.get("accepted")
