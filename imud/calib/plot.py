@@ -32,17 +32,35 @@ def draw(kind: str, outcome: Any, path: Path) -> None:
         ax.set_ylabel("|C (m - b)| - g  [mm/s^2]")
         ax.set_title("accelerometer: residual per still pose (1 sigma bars)")
     elif kind == "mag":
-        raw = np.asarray(outcome.plot["raw"]) * 1e6
-        cor = (raw / 1e6 - outcome.plot["bias"]) @ np.asarray(outcome.plot["matrix"]).T * 1e6
+        fig.set_size_inches(14, 4.2)
+        bias = np.asarray(outcome.plot["bias"])
+        raw = (np.asarray(outcome.plot["raw"]) - bias) * 1e6  # centred: the shape is what to see
+        cor = raw @ np.asarray(outcome.plot["matrix"]).T
+        radius = float(np.median(np.linalg.norm(cor, axis=1)))
+        ring = np.linspace(0.0, 2.0 * np.pi, 361)
+        lim = 1.15 * float(np.max(np.abs(np.concatenate([raw, cor]))))
         for k, (i, j) in enumerate(((0, 1), (0, 2), (1, 2))):
-            ax = fig.add_subplot(1, 3, k + 1)
-            ax.plot(raw[:, i], raw[:, j], ".", ms=1, label="raw")
-            ax.plot(cor[:, i], cor[:, j], ".", ms=1, label="corrected")
+            ax = fig.add_subplot(1, 4, k + 1)
+            ax.plot(raw[:, i], raw[:, j], ".", ms=1, alpha=0.5, label="raw, less the fitted centre")
+            ax.plot(cor[:, i], cor[:, j], ".", ms=1, alpha=0.5, label="corrected")
+            ax.plot(radius * np.cos(ring), radius * np.sin(ring), "k-", lw=0.8, label="|field|")
+            ax.set_xlim(-lim, lim)
+            ax.set_ylim(-lim, lim)
             ax.set_aspect("equal")
             ax.set_xlabel(f"{'xyz'[i]} [uT]")
             ax.set_ylabel(f"{'xyz'[j]} [uT]")
-        fig.axes[0].legend()
-        fig.suptitle("magnetometer: before and after the ellipsoid fit")
+        ax = fig.add_subplot(1, 4, 4)
+        ax.plot(np.linalg.norm(raw, axis=1), ".", ms=1, alpha=0.5)
+        ax.plot(np.linalg.norm(cor, axis=1), ".", ms=1, alpha=0.5)
+        ax.set_xlabel("sample")
+        ax.set_ylabel("|m| [uT]")
+        handles, labels = fig.axes[0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="lower center", ncol=3, markerscale=8, frameon=False)
+        fig.suptitle("magnetometer: the field before and after the ellipsoid fit")
+        fig.tight_layout(rect=(0.0, 0.08, 1.0, 1.0))
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        return
     elif kind == "temp":
         temp = np.asarray(outcome.plot["temp"])
         for row, est in enumerate(outcome.plot["estimates"]):

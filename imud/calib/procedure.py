@@ -246,6 +246,14 @@ def run_mag(
         "bias": _floats(res.minmax.bias),
         "matrix": _floats(res.minmax.matrix),
     }
+    # the figure magnetometer papers and tools quote: std(|m|) / mean(|m|) over the samples
+    assert rec.mag is not None  # check_recording refused a recording without it
+    m = rec.mag[np.all(np.isfinite(rec.mag), axis=1)]
+    report["field_norm_spread"] = {
+        "raw": _spread(m),
+        "corrected": _spread((m - est.bias) @ est.matrix.T),
+        "seed_min_max": _spread((m - res.minmax.bias) @ res.minmax.matrix.T),
+    }
     plot = {"raw": rec.mag, "bias": est.bias, "matrix": est.matrix}
     return Outcome(
         "mag",
@@ -255,6 +263,11 @@ def run_mag(
         lambda cf, source: with_affine(cf, est, source),
         plot,
     )
+
+
+def _spread(v: F64) -> float:
+    norm = np.linalg.norm(v, axis=1)
+    return float(norm.std() / norm.mean()) if norm.size else float("nan")
 
 
 def run_temp(

@@ -862,6 +862,9 @@ def mag(field_ut: float | None, strict: bool, tolerance_ut: float | None, **opts
         acceptance = Acceptance(strict, 0.01, tolerance, job.grade())
         field = None if field_ut is None else field_ut * 1e-6
         outcome = run_mag(rec, field, acceptance, shots=bool(opts.get("shots")))
+        if opts.get("mag_counts"):  # the centre where the file's counts put it, as users quote it
+            per_ut = float(opts["mag_counts"])
+            outcome.report["centre_counts"] = [b * 1e6 * per_ut for b in outcome.report["bias"]]
     except CalibrationRefused as e:
         _refused(e, job.as_json)
     job.finish(outcome, None, notes, rec.source)

@@ -97,6 +97,16 @@ def show(report: dict[str, Any], console: Console | None = None) -> None:
             b = ", ".join(f"{x * k:+.3g}" for x in seed["bias"])
             s = ", ".join(f"{x:.5f}" for x in seed["scale"])
             con.print(f"  seed up/down (per axis, for comparison): bias [{b}] {unit}, scale [{s}]")
+        spread = r.get("field_norm_spread")
+        if spread:
+            con.print(
+                f"  field-norm spread std/mean: corrected {spread['corrected']:.5f}, raw "
+                f"{spread['raw']:.5f}, seed min/max {spread['seed_min_max']:.5f}"
+            )
+        centre = r.get("centre_counts")
+        if centre:  # the hard iron in the file's own counts (--mag-counts)
+            c = ", ".join(f"{x:.1f}" for x in centre)
+            con.print(f"  hard-iron centre: [{c}] counts")
         mm = r.get("seed_min_max")
         if mm:
             b = ", ".join(f"{x * 1e6:+.3g}" for x in mm["bias"])
