@@ -189,3 +189,27 @@ def test_a_gyro_only_still_file_gives_the_bias(tmp_path: Path) -> None:
     whole.write_text("timestamp_ns,gx,gy,gz\n" + "\n".join(rows) + "\n")
     r = imud("gyro", "--from", str(whole), "--dry-run")
     assert r.returncode == 3 and "no accelerometer columns" in r.stderr, r.stderr
+
+
+def test_one_corrupt_sample_is_named_not_fitted(tmp_path: Path) -> None:
+    """A single 1e30 in the accelerometer (a corrupt line: the median-based unit checks pass
+    it) would enter the gyro's g-sensitivity term; it is refused, with its time."""
+    rec, _ = recording()
+    path = tmp_path / "corrupt.csv"
+    rows = [f"{rec.t_ns[k]},{','.join(f'{v:.6f}' for v in (*rec.accel[k], *rec.gyro[k]))}"
+            for k in range(rec.n)]  # fmt: skip
+    rows[20_000] = rows[20_000].split(",", 1)[0] + ",1e30,0,9.8,0,0,0"
+    path.write_text("timestamp_ns,ax,ay,az,gx,gy,gz\n" + "\n".join(rows) + "\n")
+    r = imud("gyro", "--from", str(path), "--dry-run")
+    assert r.returncode == 3 and "Traceback" not in r.stderr
+    assert "sample 20001 at" in r.stderr and "a corrupt line" in r.stderr, r.stderr
+
+
+def test_a_rate_the_preamble_contradicts_is_said(tmp_path: Path) -> None:
+    path = tmp_path / "qmc.csv"
+    with gzip.open(Path(__file__).parent / "data" / "qmc5883l" / "noisy_raw_data.csv.gz") as f:
+        path.write_bytes(f.read())  # its preamble: Fs,50.00
+    r = imud("mag", "--from", str(path), "--mag-counts", "30", "--rate", "100", "--dry-run")
+    assert r.returncode == 2 and "preamble says 50 Hz" in r.stderr, r.stderr
+    r = imud("mag", "--from", str(path), "--mag-counts", "30", "--rate", "50", "--dry-run")
+    assert r.returncode == 0, r.stderr

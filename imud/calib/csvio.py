@@ -800,7 +800,14 @@ def _read(
             )
         h, rows = int(rows[0]), rows[1:]
         header_text = buf[lines.start[h] : lines.stop[h]].decode("utf-8", "replace")
-    stated = next((v for k, v in preamble.items() if k in _RATE_NAMES), untimed_rate_hz)
+    said = next((v for k, v in preamble.items() if k in _RATE_NAMES), None)
+    if said is not None and rate_hz is not None and not math.isclose(said, rate_hz, rel_tol=1e-6):
+        raise CsvError(
+            path,
+            f"--rate {rate_hz:g} Hz, but the file's preamble says {said:g} Hz: drop --rate (the "
+            "file knows its rate), or fix the preamble",
+        )
+    stated = untimed_rate_hz if said is None else said
     commented = _commented_header(buf, lines, h, header_text)
     if commented is not None:  # EuRoC style: "#timestamp [ns],w_RS_S_x [rad s^-1],..."
         h, header_text = commented

@@ -551,6 +551,11 @@ def _block_diag(blocks: F64) -> F64:
     return out
 
 
+def _percent(sigma: float) -> str:
+    """A relative sigma as a percentage; beyond 1000 % the data do not bound it at all."""
+    return f"{100 * sigma:.0f} %" if sigma <= 10.0 else "unbounded"
+
+
 def _unobservable(cov_c: F64) -> str | None:
     """The worst-determined direction of C, named, when the data cannot fix it to 1 %."""
     vals, vecs = np.linalg.eigh(cov_c)
@@ -568,12 +573,12 @@ def _unobservable(cov_c: F64) -> str | None:
     if share > 0.9:
         return (
             f"the gyro's scale about its {name} axis {where} is not determined (sigma "
-            f"{100 * sigma:.0f} %): it only turned about that axis while the axis was vertical, "
+            f"{_percent(sigma)}): it only turned about that axis while the axis was vertical, "
             "which leaves gravity unchanged; turn it about that axis while it lies horizontal, or "
             "make whole turns (a turntable) and pass --full-turns"
         )
     return (
-        f"a combination of the gyro matrix is not determined (sigma {100 * sigma:.0f} %, mostly "
+        f"a combination of the gyro matrix is not determined (sigma {_percent(sigma)}, mostly "
         f"the {name} axis {where}): add rotations about all three axes between still poses"
     )
 

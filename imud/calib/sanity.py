@@ -32,6 +32,11 @@ _MAGNITUDE: dict[str, tuple[float, float, str, str]] = {
             "uT or gauss read as tesla, or raw counts? give --mag-units (or scale the column)"),
 }  # fmt: skip
 _NAMES = {"accel": "accelerometer", "gyro": "gyroscope", "mag": "magnetometer"}
+# one sample beyond what any IMU reads is a corrupt line, not a reading: it would enter every
+# fit (the gyro's g-sensitivity term applied to 1e30 m/s^2); twice the widest ranges parts
+# offer (a 200 g accelerometer, a 4000 deg/s gyro, a 1 mT magnetometer)
+_SAMPLE_LIMIT = {"accel": 4000.0, "gyro": 140.0, "mag": 2e-3}
+_UNIT = {"accel": "m/s^2", "gyro": "rad/s", "mag": "T"}
 
 
 def check_recording(
@@ -63,4 +68,24 @@ def check_recording(
             raise CalibrationRefused(
                 f"{where}: the {_NAMES[sensor]}'s median magnitude is {median:.4g} {unit}, "
                 f"outside what it can read here ({lo:.3g}-{hi:.3g} {unit}): {fix}"
+            )
+    for sensor in ("accel", "gyro", "mag"):  # every column a fit reads, not only its own
+        x = {"accel": rec.accel, "gyro": rec.gyro, "mag": rec.mag}[sensor]
+        if x is None or np.isnan(x).all():
+            continue
+        with np.errstate(invalid="ignore"):
+            beyond = np.flatnonzero(np.nanmax(np.abs(x), axis=1) > _SAMPLE_LIMIT[sensor])
+        if beyond.size:
+            k = int(beyond[0])
+            t = float(rec.t_ns[k] - rec.t_ns[0]) * 1e-9
+            # a few such samples are corrupt lines; many are a unit the file was misread in
+            cause = (
+                "a corrupt line; fix or drop it"
+                if beyond.size <= max(3, rec.n // 1000)
+                else _MAGNITUDE[sensor][3]
+            )
+            raise CalibrationRefused(
+                f"{where}: {beyond.size} sample(s) read beyond what any IMU reads (up to "
+                f"{_SAMPLE_LIMIT[sensor]:g} {_UNIT[sensor]} on the {_NAMES[sensor]}), the first "
+                f"sample {k + 1} at {t:.3f} s ({np.abs(x[k]).max():.4g}): {cause}"
             )
