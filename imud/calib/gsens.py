@@ -46,6 +46,7 @@ class GSensitivity:
     p_value: float  # of the improvement, chi2 on 9 dof, if there were no G
     included: bool
     bias_cov: F64  # (3, 3) the bias's covariance: the intercept's with G, else the mean's
+    matrix_sigma: F64  # (3, 3) each element's 1-sigma, rad/s per m/s^2 (of the fit with G)
 
 
 def _weighted_fit(design: F64, y: F64) -> tuple[F64, float]:
@@ -108,4 +109,5 @@ def fit_g_sensitivity(
         p_value=p_value,
         included=included,
         bias_cov=cov1[:3, :3] if included else cov0,
+        matrix_sigma=np.sqrt(np.clip(np.diag(cov1)[3:], 0.0, None)).reshape(3, 3),
     )

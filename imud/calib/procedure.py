@@ -372,7 +372,8 @@ def _without_g_sensitivity(
         return rec, gs
     per_g = np.degrees(np.abs(gs.matrix).max()) * STANDARD_GRAVITY
     notes.append(
-        f"g-sensitivity found in the still poses (up to {per_g:.3f} deg/s per g; chi2 "
+        f"g-sensitivity found in the still poses (up to {per_g:.3f} deg/s per g, each "
+        f"element +-{np.degrees(gs.matrix_sigma.max()) * STANDARD_GRAVITY:.3f} or better; chi2 "
         f"{gs.chi2_without:.0f} without it, {gs.chi2_with:.0f} with it on {gs.dof_with} dof): "
         "taken out before the fit, written to the file, applied by the daemon"
     )
@@ -488,6 +489,7 @@ def run_gyro(
         report["g_sensitivity"] = {
             "included": gsens.included,
             "matrix_rad_s_per_m_s2": _floats(gsens.matrix),
+            "sigma_rad_s_per_m_s2": _floats(gsens.matrix_sigma),
             "chi2_without": gsens.chi2_without,
             "chi2_with": gsens.chi2_with,
             "dof_with": gsens.dof_with,
