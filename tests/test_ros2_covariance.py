@@ -20,7 +20,7 @@ from imud.chips.api import DeviceBase, NoiseFigures
 from imud.config import load_config, parse_config
 from imud.ros2 import covariance as cv
 from imud.ros2.decimate import factor
-from imud.ros2.output import _noise
+from imud.ros2.messages import _noise
 
 G = 9.80665
 REPO = Path(__file__).resolve().parent.parent

@@ -2,9 +2,8 @@
 profiles `[ros2]` names (docs/ros2.md).
 
 Fed from the bus links' relay threads (`batch`), one device's batches always from the same
-thread, in order; never on a bus worker. A device's state (its decimator, its publishers' sequence
-numbers, its last stamp) is touched only by its own relay thread; `reconfigure` runs on the
-event loop and swaps whole `_Device` objects, so a batch sees either the old or the new one.
+thread, in order; never on a bus worker. What the messages are is imud/ros2/messages.py's; this
+puts them on rmw_zenoh, the bridge and DDS, each topic's publishers kept across reloads.
 """
 
 from __future__ import annotations
@@ -12,37 +11,22 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import threading
 import time
-from collections.abc import Iterable, Iterator
-from dataclasses import astuple, dataclass, field
-from pathlib import Path
+from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import zenoh
 
-from imud.channels import Channel
 from imud.ros2 import bridge as zb
-from imud.ros2 import diagnostics as diag
 from imud.ros2 import rmw_zenoh as rz
-from imud.ros2.cdr import Layout, layout, messages, template
-from imud.ros2.covariance import UNKNOWN, Covariances, covariances
 from imud.ros2.dds import DdsError, DdsOutput
-from imud.ros2.decimate import Decimator, factor
-from imud.rosnames import join
-from imud.wire import KIND_SAMPLES, Picks, WireError, gather, peek
+from imud.ros2.messages import Ros2Messages, Topic
 
 if TYPE_CHECKING:
-    from imud.chips.api import DeviceBase, NoiseFigures
     from imud.config import ImudConfig, Ros2Settings
 
 log = logging.getLogger("imud.ros2")
-
-IMU = "sensor_msgs/msg/Imu"
-MAG = "sensor_msgs/msg/MagneticField"
-TEMPERATURE = "sensor_msgs/msg/Temperature"
-NO_ORIENTATION = np.r_[-1.0, np.zeros(8)]  # REP-145: orientation_covariance[0] = -1
 
 
 class DomainError(ValueError):
@@ -66,12 +50,9 @@ def domain_id(s: Ros2Settings, env: dict[str, str] | None = None) -> int:
 
 
 @dataclass
-class _Topic:
-    """One ROS 2 topic of a device on every profile it goes out on."""
+class _Handles:
+    """A topic's publishers on every profile it goes out on (Topic.handles["out"])."""
 
-    name: str
-    type_name: str
-    layout: Layout | None  # None: not a fixed-layout message (diagnostics)
     rmw: Any = None  # zenoh.Publisher on rmw_zenoh's key
     bridge: Any = None  # zenoh.Publisher on the bridge's key
     dds: Any = None  # a dds writer
@@ -80,40 +61,16 @@ class _Topic:
     token_key: str = ""
     gid: bytes = b""
     sent: int = 0  # messages put (rmw_zenoh's attachment numbers them from 1)
-    lock: threading.Lock = field(default_factory=threading.Lock)  # the old and new device's
-    # relay threads both put during a reload
-
-
-@dataclass
-class _Feed:
-    """A topic as one device fills it: its messages' constant fields (a cdr.template)."""
-
-    topic: _Topic
-    base: Any
-
-
-@dataclass
-class _Device:
-    cfg: DeviceBase
-    cols: dict[Channel, slice]  # where each channel sits in the (N, W) matrix of a batch
-    picks: Picks  # the wire's channel components, column by column
-    decimator: Decimator
-    cov: Covariances  # of its messages at its settings and rate (docs/ros2.md "Covariances")
-    topics: dict[str, _Feed] = field(default_factory=dict)  # replaced whole, never edited
-    calibration: Signature = None  # the calibration file its covariances were read from
-    last_ns: int = -1  # stamps never step back (a bus restarted, a reload)
-    dropped: int = 0
-    pending: list[bytes] = field(default_factory=list)  # batches held until [ros2] batch_ms
-    pending_from: int = 0  # the first held sample's stamp
 
 
 class Ros2Output:
+    """The messages of imud/ros2/messages.py on the profiles `[ros2]` names."""
+
     def __init__(self, cfg: ImudConfig, session: zenoh.Session) -> None:
         self.settings = cfg.ros2
         self.session = session
         self.domain = domain_id(cfg.ros2)
         self.zid = str(session.info.zid())
-        self._hold_ns = int(cfg.ros2.batch_ms * 1e6)
         self.error: str | None = None  # a profile that could not start (the others run)
         self._dds: DdsOutput | None = None
         if "dds" in cfg.ros2.profiles:
@@ -128,126 +85,47 @@ class Ros2Output:
         self._node = session.liveliness().declare_token(
             rz.node_token(self.domain, self.zid, 0, self.settings.namespace, self.settings.node)
         )
-        # topics by (name, type, frame_id): a device rebuilt by a reload keeps its publishers,
-        # GIDs and sequence numbers, so subscribers see one publisher that never restarted
-        self._topics: dict[tuple[str, str, str], _Topic] = {}
-        self._devices: dict[str, _Device] = {}
-        self._lock = threading.Lock()  # declaring and undeclaring (event loop) only
-        self._diagnostics: _Topic | None = None
-        self._lost: dict[str, int] = {}  # each device's lost samples at the last report
-        if cfg.ros2.diagnostics:
-            self._diagnostics = _Topic(diag.TOPIC, diag.TYPE_NAME, None)
-            self._topics[(diag.TOPIC, diag.TYPE_NAME, "")] = self._diagnostics
-            self._declare(self._diagnostics)
-        self.reconfigure(cfg)
+        self.msgs = Ros2Messages(cfg, self._put, self._topic)
 
     # --- what goes out ------------------------------------------------------------------------
     def reconfigure(self, cfg: ImudConfig) -> None:
         """Publishers for `cfg`'s devices: a device whose ROS 2 side is unchanged keeps its
         publishers and state; others get new ones (their sequence numbers go on)."""
-        with self._lock:
-            old = self._devices
-            new: dict[str, _Device] = {}
-            for d in cfg.device:
-                if not d.ros2.enabled:
-                    continue
-                prev = old.get(d.name)
-                if prev is not None and _same(prev.cfg, d):
-                    new[d.name] = prev
-                    continue
-                dev = self._device(d)
-                if prev is not None:
-                    dev.last_ns = prev.last_ns
-                new[d.name] = dev
-            self._devices = new
-            used = {id(f.topic) for dev in new.values() for f in dev.topics.values()}
-            if self._diagnostics is not None:
-                used.add(id(self._diagnostics))
-            for key, t in list(self._topics.items()):
-                if id(t) not in used:
-                    self._undeclare(t)
-                    del self._topics[key]
+        self.msgs.reconfigure(cfg)
 
-    def _device(self, d: DeviceBase) -> _Device:
-        from imud import registry  # the chip's channels: what topics it has
+    def _topic(self, t: Topic, added: bool) -> None:
+        if added:
+            t.handles["out"] = self._declare(t)
+        else:
+            self._undeclare(t.handles.pop("out", _Handles()))
 
+    def _declare(self, t: Topic) -> _Handles:
         s = self.settings
-        channels = Channel(registry.CHIPS[d.chip].channels)
-        cols: dict[Channel, slice] = {}
-        picks: list[tuple[Channel, int]] = []
-        width = 0
-        for ch, w in _WIDTHS.items():
-            if channels & ch:
-                cols[ch] = slice(width, width + w)
-                width += w
-                # a quaternion is w, x, y, z on the wire and x, y, z, w in ROS
-                picks += [(ch, i) for i in (_XYZW if ch is Channel.ORIENTATION else range(w))]
-        k = factor(d.odr_hz, d.ros2.rate_hz or s.rate_hz)
-        quat = cols.get(Channel.ORIENTATION)
-        sig = _signature(d.calibration)
-        cov = covariances(_noise(d), d.odr_hz, k, _measured(d))
-        dev = _Device(d, cols, tuple(picks), Decimator(k, quat), cov, calibration=sig)
-        dev.topics = self._feeds(d, channels, cov)
-        return dev
-
-    def _feeds(self, d: DeviceBase, channels: Channel, cov: Covariances) -> dict[str, _Feed]:
-        """The device's topics (declared when new) with their messages' constant fields."""
-        s = self.settings
-        where = join(s.namespace, d.ros2.namespace or d.name)
-        frame = d.ros2.frame_id or s.frame_id
-        imu_cov = {
-            "angular_velocity_covariance": cov.gyro,
-            "linear_acceleration_covariance": cov.accel,
-        }
-        wanted: list[tuple[str, str, dict[str, Any]]] = []
-        if channels & (Channel.ACCEL | Channel.GYRO):
-            wanted.append(
-                ("imu/data_raw", IMU, {"orientation_covariance": NO_ORIENTATION, **imu_cov})
-            )
-        if channels & Channel.ORIENTATION:
-            # an orientation whose accuracy no datasheet figure imud has states: unknown
-            # (REP-145, all zero), never -1, which would say there is none
-            wanted.append(("imu/data", IMU, {"orientation_covariance": UNKNOWN, **imu_cov}))
-        if channels & Channel.MAG:
-            wanted.append(("imu/mag", MAG, {"magnetic_field_covariance": cov.mag}))
-        if s.temperature and channels & Channel.TEMPERATURE:
-            wanted.append(("imu/temperature", TEMPERATURE, {"variance": 0.0}))
-        feeds: dict[str, _Feed] = {}
-        for rel, type_name, fixed in wanted:
-            key = (join(where, rel), type_name, frame)
-            topic = self._topics.get(key)
-            if topic is None:
-                topic = self._topics[key] = _Topic(key[0], type_name, layout(type_name, frame))
-                self._declare(topic)
-            feeds[rel] = _Feed(topic, template(_lay(topic), fixed))
-        return feeds
-
-    def _declare(self, t: _Topic) -> None:
-        s = self.settings
+        h = _Handles()
         type_hash = rz.NO_TYPE_HASH if s.distro == "humble" else rz.TYPE_HASHES[t.type_name]
         if "rmw_zenoh" in s.profiles:
             qos = rz.Qos(reliable=s.reliable, depth=s.depth)
-            t.token_key = rz.publisher_token(
+            h.token_key = rz.publisher_token(
                 self.domain, self.zid, 0, next(self._ids), s.namespace, s.node, t.name,
                 t.type_name, type_hash, qos,
             )  # fmt: skip
-            t.gid = rz.gid(t.token_key)
-            t.rmw = self.session.declare_publisher(
+            h.gid = rz.gid(h.token_key)
+            h.rmw = self.session.declare_publisher(
                 rz.data_key(self.domain, t.name, t.type_name, type_hash),
                 congestion_control=zenoh.CongestionControl.DROP,  # as rmw_zenoh's KEEP_LAST
                 reliability=zenoh.Reliability.RELIABLE
                 if s.reliable
                 else zenoh.Reliability.BEST_EFFORT,
             )
-            t.token = self.session.liveliness().declare_token(t.token_key)
+            h.token = self.session.liveliness().declare_token(h.token_key)
         if self._dds is not None:
             try:
-                t.dds = self._dds.writer(t.name, t.type_name)
+                h.dds = self._dds.writer(t.name, t.type_name)
             except Exception as e:  # cyclonedds' own errors: the other profiles go on
                 self.error = f"dds: {t.name}: {e}"
                 log.error("ROS 2 %s; the other profiles run", self.error)
         if "bridge" in s.profiles:
-            t.bridge = self.session.declare_publisher(
+            h.bridge = self.session.declare_publisher(
                 zb.data_key(t.name),
                 congestion_control=zenoh.CongestionControl.DROP,
                 reliability=zenoh.Reliability.RELIABLE
@@ -255,237 +133,58 @@ class Ros2Output:
                 else zenoh.Reliability.BEST_EFFORT,
             )
             bridge_hash = None if s.distro == "humble" else type_hash
-            t.bridge_token = self.session.liveliness().declare_token(
+            h.bridge_token = self.session.liveliness().declare_token(
                 zb.publisher_token(self.zid, t.name, t.type_name, s.reliable, s.depth, bridge_hash)
             )
+        return h
 
-    def _undeclare(self, t: _Topic) -> None:
-        for ent in (t.rmw, t.bridge, t.token, t.bridge_token):
+    def _undeclare(self, h: _Handles) -> None:
+        for ent in (h.rmw, h.bridge, h.token, h.bridge_token):
             if ent is not None:
                 with contextlib.suppress(zenoh.ZError):  # the session is closing
                     ent.undeclare()
-        t.dds = None  # Cyclone deletes a writer with its last reference
+        h.dds = None  # Cyclone deletes a writer with its last reference
 
     def topics(self) -> list[str]:
         """Every topic published, for status."""
-        return sorted(f.topic.name for d in self._devices.values() for f in d.topics.values())
+        return self.msgs.topics()
 
     def messages(self) -> dict[str, int]:
         """Messages put on each topic since it was declared, for status."""
-        return {t.name: t.sent for t in self._topics.values()}
+        return {t.name: t.handles["out"].sent for t in self.msgs.all_topics()}
 
     def dropped(self) -> dict[str, int]:
         """Per device, messages not sent because their stamp did not follow the last one sent
         (a bus restart or a reload re-sent an instant already published), for status."""
-        return {name: dev.dropped for name, dev in self._devices.items() if dev.dropped}
+        return self.msgs.dropped()
 
     def close(self) -> None:
-        with self._lock:
-            for t in self._topics.values():
-                self._undeclare(t)
-            self._topics = {}
-            self._devices = {}
-            with contextlib.suppress(zenoh.ZError):
-                self._node.undeclare()  # type: ignore[no-untyped-call]
-            if self._dds is not None:
-                self._dds.close()
-                self._dds = None
+        self.msgs.close()
+        with contextlib.suppress(zenoh.ZError):
+            self._node.undeclare()  # type: ignore[no-untyped-call]
+        if self._dds is not None:
+            self._dds.close()
+            self._dds = None
 
-    # --- once a second -------------------------------------------------------------------------
     def tick(self, devices: list[dict[str, Any]], period_s: float = 1.0) -> None:
         """Called by the daemon every `period_s` with its devices' status JSON: publishes
         /diagnostics, and takes up the measured noise of a calibration file that changed."""
-        for dev in list(self._devices.values()):
-            sig = _signature(dev.cfg.calibration)
-            if sig != dev.calibration:
-                dev.calibration = sig
-                self._refresh_covariances(dev)
-        t = self._diagnostics
-        if t is None:
-            return
-        statuses = []
-        for d in devices:
-            name = str(d.get("name"))
-            statuses.append(diag.device_status(d, self._lost.get(name), period_s))
-            self._lost[name] = int(d.get("lost_samples", 0))
-        self._put(t, [diag.encode(time.time_ns(), statuses)])
+        self.msgs.tick(devices, time.time_ns(), period_s)
 
-    def _refresh_covariances(self, dev: _Device) -> None:
-        from imud import registry
-
-        d = dev.cfg
-        cov = covariances(_noise(d), d.odr_hz, dev.decimator.k, _measured(d))
-        if all(np.array_equal(a, b) for a, b in zip(astuple(cov), astuple(dev.cov), strict=True)):
-            return
-        with self._lock:
-            dev.cov = cov
-            dev.topics = self._feeds(d, Channel(registry.CHIPS[d.chip].channels), cov)
-        log.info("%s: ROS 2 covariances now from %s", d.name, d.calibration)
-
-    # --- the batches --------------------------------------------------------------------------
     def batch(self, name: str, payload: bytes | memoryview) -> None:
-        """One relayed wire batch of device `name`: held until `[ros2] batch_ms` of the stream
-        has arrived (by the samples' stamps, so how the scheduler ran does not change what is
-        sent), then averaged and published in one step."""
-        dev = self._devices.get(name)
-        if dev is None:
-            return
-        try:
-            _, n, first_ns, last_ns, _ = peek(payload)
-        except Exception:  # struct.error: shorter than a header
-            log.error("%s: a batch too short for the ROS 2 output", name)
-            return
-        if not n:
-            return
-        if not dev.pending:
-            dev.pending_from = first_ns
-        dev.pending.append(bytes(payload))
-        if last_ns - dev.pending_from < self._hold_ns:
-            return
-        held, dev.pending = dev.pending, []
-        self._step(name, dev, held)
+        """One relayed wire batch of device `name` (imud/ros2/messages.py)."""
+        self.msgs.batch(name, payload)
 
-    def _step(self, name: str, dev: _Device, payloads: list[bytes]) -> None:
-        parts = []
-        for p in payloads:
-            try:
-                kind, first, t_ns, values = gather(p, dev.picks)
-            except WireError:
-                log.exception("%s: a batch the ROS 2 output cannot read", name)
-                continue
-            if kind == KIND_SAMPLES and t_ns.shape[0]:
-                parts.append((first, t_ns, values))
-        if not parts:
-            return
-        seqs = [first + np.arange(t_ns.shape[0], dtype=np.int64) for first, t_ns, _ in parts]
-        if len(parts) == 1:
-            seq, t_ns, m = seqs[0], parts[0][1], parts[0][2].astype(np.float64)
-        else:
-            seq = np.concatenate(seqs)
-            t_ns = np.concatenate([p[1] for p in parts])
-            m = np.concatenate([p[2] for p in parts], dtype=np.float64)
-        out = dev.decimator.feed(seq, t_ns, m)
-        if not out.n:
-            return
-        t, v = out.t_ns, out.values
-        if t[0] <= dev.last_ns:
-            keep = t > dev.last_ns
-            dev.dropped += int(np.count_nonzero(~keep))
-            t, v = t[keep], v[keep]
-            if not t.size:
-                return
-        dev.last_ns = int(t[-1])
-        self._publish(dev, t, v)
-
-    def _publish(self, dev: _Device, t: Any, v: Any) -> None:
-        cols = dev.cols
-        imu: dict[str, Any] = {}
-        if Channel.GYRO in cols:
-            imu["angular_velocity"] = v[:, cols[Channel.GYRO]]
-        if Channel.ACCEL in cols:
-            imu["linear_acceleration"] = v[:, cols[Channel.ACCEL]]
-        raw = dev.topics.get("imu/data_raw")
-        if raw is not None:
-            self._put(raw.topic, _cdr(messages(_lay(raw.topic), t, imu, raw.base)))
-        for rel, ch, name in _OPTIONAL:
-            feed = dev.topics.get(rel)
-            if feed is None:
-                continue
-            x = v[:, cols[ch]]
-            tt = t
-            have = ~np.isnan(x).all(axis=1)
-            if not have.all():  # batches without this channel (a held magnetometer reading)
-                x, tt = x[have], t[have]
-                if not tt.size:
-                    continue
-            fields = {name: x[:, 0] if ch is Channel.TEMPERATURE else x}
-            if ch is Channel.ORIENTATION:
-                fields.update({f: a[have] for f, a in imu.items()})
-            self._put(feed.topic, _cdr(messages(_lay(feed.topic), tt, fields, feed.base)))
-
-    def _put(self, t: _Topic, payloads: Iterable[bytes]) -> None:
+    def _put(self, t: Topic, payloads: Iterable[bytes]) -> None:
         form = rz.Attachment(self.settings.attachment)
         now = time.time_ns()
+        h: _Handles = t.handles["out"]
         with t.lock:
             for payload in payloads:
-                t.sent += 1
-                if t.rmw is not None:
-                    t.rmw.put(payload, attachment=rz.attachment(t.sent, now, t.gid, form))
-                if t.bridge is not None:
-                    t.bridge.put(payload)
-                if t.dds is not None:
-                    t.dds.write_cdr(payload)
-
-
-# a device's matrix columns, in this order: what each channel is as a ROS field
-_WIDTHS = {
-    Channel.ACCEL: 3,  # linear_acceleration
-    Channel.GYRO: 3,  # angular_velocity
-    Channel.MAG: 3,  # magnetic_field
-    Channel.ORIENTATION: 4,  # orientation, x, y, z, w
-    Channel.TEMPERATURE: 1,  # temperature
-}
-_XYZW = (1, 2, 3, 0)
-# topics sent only for samples that carry their channel: (topic, channel, field)
-_OPTIONAL = (
-    ("imu/data", Channel.ORIENTATION, "orientation"),
-    ("imu/mag", Channel.MAG, "magnetic_field"),
-    ("imu/temperature", Channel.TEMPERATURE, "temperature"),
-)
-
-
-def _lay(t: _Topic) -> Layout:
-    assert t.layout is not None  # every device topic has one
-    return t.layout
-
-
-def _cdr(records: Any) -> Iterator[bytes]:
-    return (r.tobytes() for r in records)
-
-
-Signature = tuple[int, int, int] | None
-
-
-def _signature(path: Path | None) -> Signature:
-    if path is None:
-        return None
-    try:
-        st = os.stat(path)
-    except OSError:
-        return None
-    return (st.st_mtime_ns, st.st_size, st.st_ino)
-
-
-def _measured(d: DeviceBase) -> dict[str, Any]:
-    """The per-axis noise densities the device's calibration file measured, by sensor; empty
-    when it has none or cannot be read (the device's status says why it is not applied)."""
-    from imud.calib.file import CalibrationError, read_calibration
-
-    if d.calibration is None:
-        return {}
-    try:
-        cf = read_calibration(d.calibration)
-    except CalibrationError:
-        return {}
-    if cf.chip is not None and cf.chip != d.chip:
-        return {}
-    out = {}
-    for name in ("accel", "gyro"):
-        table = cf.sensor(name)
-        if table is not None and table.noise is not None:
-            out[name] = np.asarray(table.noise.density, dtype=np.float64)
-    return out
-
-
-def _noise(d: DeviceBase) -> NoiseFigures | None:
-    """The device's white noise at its settings, as its chip's spec states it (None: unknown)."""
-    from imud import registry
-
-    noise = registry.CHIPS[d.chip].noise
-    return None if noise is None else noise(d)
-
-
-def _same(a: DeviceBase, b: DeviceBase) -> bool:
-    """The same ROS 2 side: chip, rate, ROS settings and noise (a new filter setting changes
-    the covariances)."""
-    return (a.chip, a.odr_hz, a.ros2, _noise(a)) == (b.chip, b.odr_hz, b.ros2, _noise(b))
+                h.sent += 1
+                if h.rmw is not None:
+                    h.rmw.put(payload, attachment=rz.attachment(h.sent, now, h.gid, form))
+                if h.bridge is not None:
+                    h.bridge.put(payload)
+                if h.dds is not None:
+                    h.dds.write_cdr(payload)
