@@ -13,7 +13,7 @@ from typing import Any
 
 import zenoh
 
-from imud.session import BadEndpoint, NoDaemon, get_status, open_session
+from imud.session import BadEndpoint, NoDaemon, get_config, get_status, open_session
 from imud.wire import KIND_SAMPLES, KIND_TRUTH, Batch, WireError, decode
 
 __all__ = [
@@ -26,6 +26,7 @@ __all__ = [
     "batches",
     "data_key",
     "decode",
+    "get_config",
     "get_status",
     "open_session",
 ]

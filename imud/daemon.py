@@ -123,7 +123,7 @@ class Daemon:
         self._reload_requested = threading.Event()
         self.session: zenoh.Session | None = None
         self._ends: dict[str, _Endpoints] = {}
-        self._daemon_q: Any = None
+        self._daemon_q: list[Any] = []  # the daemon's own queryables (status, config)
         self._raw_on: set[str] = set()  # devices whose raw stream has a subscriber
         self.offset_ns = 0
         self._tg: TaskGroup | None = None
@@ -217,8 +217,11 @@ class Daemon:
         q = session.declare_queryable(
             f"{prefix}/daemon/status", lambda q: self._answer(q, self.status())
         )
+        c = session.declare_queryable(
+            f"{prefix}/daemon/config", lambda q: self._answer(q, self.config_view())
+        )
         ends = {d.name: self._declare(session, prefix, d) for d in cfg.device}
-        self.session, self._daemon_q, self._ends = session, q, ends
+        self.session, self._daemon_q, self._ends = session, [q, c], ends
 
     def _want_raw(self, name: str, on: bool) -> None:
         (self._raw_on.add if on else self._raw_on.discard)(name)
@@ -273,6 +276,22 @@ class Daemon:
     def _start_link(self, w: BusLink) -> None:
         assert self._tg is not None
         self._tg.start_soon(anyio.to_thread.run_sync, w.run)
+
+    def config_view(self) -> dict[str, Any]:
+        """What the daemon runs, for a recorder to keep beside the data and to build the same
+        ROS 2 messages from: the config as loaded, its file's text, each device's calibration
+        file's text (None where it cannot be read: its status says why)."""
+        cfg = self.cfg
+        return {
+            "path": None if self.config_path is None else str(self.config_path),
+            "text": _text(self.config_path),
+            "config": cfg.model_dump(mode="json"),
+            "calibration": {
+                d.name: {"path": str(d.calibration), "text": _text(d.calibration)}
+                for d in cfg.device
+                if d.calibration is not None
+            },
+        }
 
     def _answer(self, q: zenoh.Query, body: dict[str, Any]) -> None:
         with q:
@@ -446,15 +465,15 @@ class Daemon:
 
     async def _close_session(self) -> None:
         session, ends, q = self.session, self._ends, self._daemon_q
-        self._ends, self._daemon_q = {}, None
+        self._ends, self._daemon_q = {}, []
         if self.ros2 is not None:
             self.ros2.close()
             self.ros2 = None
         for e in ends.values():
             e.undeclare()
-        if q is not None:
+        for one in q:
             with contextlib.suppress(zenoh.ZError):
-                q.undeclare()
+                one.undeclare()
         if session is not None:
             await anyio.to_thread.run_sync(session.close)
 
@@ -489,8 +508,9 @@ class Daemon:
         self._declare_all(session, new)
         for gone in old_ends.values():
             gone.undeclare()
-        with contextlib.suppress(zenoh.ZError):
-            old_q.undeclare()
+        for one in old_q:
+            with contextlib.suppress(zenoh.ZError):
+                one.undeclare()
         if old_session is not None:
             await anyio.to_thread.run_sync(old_session.close)
         return None
@@ -575,3 +595,13 @@ class Daemon:
                 self.notifier.notify("WATCHDOG=1")
             if ticks % max(1, round(5 / period)) == 0:
                 self.notifier.notify(f"STATUS={self._summary()}")
+
+
+def _text(path: Path | None) -> str | None:
+    """A small text file's content, or None where it cannot be read."""
+    if path is None:
+        return None
+    try:
+        return path.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return None

@@ -37,12 +37,23 @@ def open_session(endpoint: str = DEFAULT_ENDPOINT) -> zenoh.Session:
         raise NoDaemon(f"no imud daemon reachable at {endpoint}{detail}") from None
 
 
+def get_config(
+    session: zenoh.Session, prefix: str = "imud", timeout: float = 2.0
+) -> dict[str, Any]:
+    """What the daemon runs (Daemon.config_view): its config as loaded and as written, and its
+    devices' calibration files. Raises `NoDaemon` as get_status does."""
+    return _ask(session, f"{prefix}/daemon/config", timeout)
+
+
 def get_status(
     session: zenoh.Session, prefix: str = "imud", device: str | None = None, timeout: float = 2.0
 ) -> dict[str, Any]:
     """The daemon's status (or one device's) as JSON. Raises `NoDaemon` when nothing answers
     within `timeout` seconds (a Zenoh peer without an imud daemon, or another `prefix`)."""
-    key = f"{prefix}/{device or 'daemon'}/status"
+    return _ask(session, f"{prefix}/{device or 'daemon'}/status", timeout)
+
+
+def _ask(session: zenoh.Session, key: str, timeout: float) -> dict[str, Any]:
     try:
         for reply in session.get(key, timeout=timeout):
             if reply.ok is not None:

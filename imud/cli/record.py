@@ -1,15 +1,25 @@
-"""`imud record DEVICE --csv FILE --duration S [--raw]`: the live stream into a CSV recording
-(docs/recording-csv.md) that every offline `imud calibrate` command reads.
+"""`imud record`: a running daemon's streams into a file.
 
-Samples are written as they arrive (nothing is held in memory); the file appears complete under
-its name at the end (a crash leaves `FILE.partial`). Samples a chip marked invalid cannot be
-written (the format has no NaN): they are left out and counted, as are samples lost on the way.
+`imud record [DEVICE ...] -o FILE.mcap [--duration S] [--split-size MB | --split-duration S]`:
+every device (or those named) into MCAP (imud/recording): the native batches, lossless, the
+ROS 2 messages the daemon's output makes of them, /diagnostics, the config and calibration files;
+a progress line while it runs, a summary at the end. Ctrl-C (or SIGTERM) ends it cleanly.
+
+`imud record DEVICE --csv FILE --duration S [--raw]`: one device into a CSV recording
+(docs/recording-csv.md) that every offline `imud calibrate` command reads. Samples are written
+as they arrive; the file appears complete under its name at the end (a crash leaves
+`FILE.partial`). Samples a chip marked invalid cannot be written (the format has no NaN): they
+are left out and counted, as are samples lost on the way.
 """
 
 from __future__ import annotations
 
+import signal
+import sys
+import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import click
 import numpy as np
@@ -18,24 +28,157 @@ from imud.cli.common import EXIT_USAGE, _ask_status, _connect, _device, _fail, _
 
 
 @click.command()
-@click.argument("device")
+@click.argument("devices", nargs=-1)
 @click.option(
-    "--csv", "csv_path", required=True, type=click.Path(dir_okay=False), help="the file to write"
+    "-o", "--output", "mcap_path", type=click.Path(dir_okay=False), help="the MCAP file to write"
 )
-@click.option("--raw", is_flag=True, help="the uncorrected stream (what calibration needs)")
-@click.option("--duration", required=True, type=click.FloatRange(min=0.1), help="seconds")
+@click.option(
+    "--csv", "csv_path", type=click.Path(dir_okay=False), help="one device into a CSV recording"
+)
+@click.option("--raw", is_flag=True, help="--csv: the uncorrected stream (what calibration needs)")
+@click.option("--duration", type=click.FloatRange(min=0.1), help="seconds (default: until Ctrl-C)")
+@click.option(
+    "--split-size",
+    type=click.FloatRange(min=1.0),
+    help="start a new file (NAME_001.mcap, ...) every this many MB",
+)
+@click.option(
+    "--split-duration", type=click.FloatRange(min=1.0), help="start a new file every this many s"
+)
 @_connect
 @_prefix
 def record(
-    device: str, csv_path: str, raw: bool, duration: float, endpoint: str, prefix: str
+    devices: tuple[str, ...],
+    mcap_path: str | None,
+    csv_path: str | None,
+    raw: bool,
+    duration: float | None,
+    split_size: float | None,
+    split_duration: float | None,
+    endpoint: str,
+    prefix: str,
 ) -> None:
-    """Write DEVICE's samples (corrected, or --raw) for --duration seconds to a CSV file."""
+    """Record a running daemon's devices (all, or DEVICES) to MCAP (-o FILE.mcap), or one
+    device to a CSV recording (--csv FILE)."""
+    if (mcap_path is None) == (csv_path is None):
+        _fail("give -o FILE.mcap (every device, or those named) or --csv FILE (one device)", 2)
+    if csv_path is not None:
+        if len(devices) != 1 or duration is None:
+            _fail("--csv records one device for a --duration: imud record DEVICE --csv F", 2)
+        if split_size is not None or split_duration is not None:
+            _fail("--split-size/--split-duration split MCAP files (-o), not a CSV", 2)
+        _record_csv(devices[0], Path(csv_path), raw, duration, endpoint, prefix)
+        return
+    if raw:
+        _fail("--raw goes with --csv; an MCAP recording holds the corrected stream", 2)
+    if split_size is not None and split_duration is not None:
+        _fail("give --split-size or --split-duration, not both", 2)
+    assert mcap_path is not None
+    _record_mcap(
+        list(devices), Path(mcap_path), duration, split_size, split_duration, endpoint, prefix
+    )
+
+
+def _record_mcap(
+    names: list[str],
+    out: Path,
+    duration: float | None,
+    split_mb: float | None,
+    split_s: float | None,
+    endpoint: str,
+    prefix: str,
+) -> None:
+    from imud.recording.mcapfile import McapOut
+    from imud.recording.recorder import Recorder, attachments
+    from imud.session import NoDaemon, get_config, get_status
+
+    if out.suffix != ".mcap":
+        _fail(f"-o {out}: name the file .mcap (what Foxglove and ros2 bag look for)", EXIT_USAGE)
+    if not out.parent.is_dir():
+        _fail(f"-o {out}: directory {out.parent} does not exist", EXIT_USAGE)
+    if out.exists():
+        _fail(f"-o {out}: exists; choose another name (nothing recorded is overwritten)", 2)
+    with _session(endpoint) as s:
+        st = _ask_status(s, endpoint, prefix, 2.0)
+        for n in names:
+            _device(st, n, endpoint, False, False)
+        names = names or [d["name"] for d in st.get("devices", [])]
+        if not names:
+            _fail(f"the daemon at {endpoint} runs no devices: nothing to record", EXIT_USAGE)
+        try:
+            view: dict[str, Any] | None = get_config(s, prefix, timeout=2.0)
+        except NoDaemon:  # an older daemon: the native batches, without ROS 2 messages
+            view = None
+        meta = {"imud": {"devices": ",".join(names), "endpoint": endpoint, "prefix": prefix}}
+        mcap = McapOut(
+            out,
+            attachments(view),
+            meta,
+            split_bytes=None if split_mb is None else int(split_mb * 1e6),
+            split_s=split_s,
+        )
+        rec = Recorder(s, prefix, names, view, mcap)
+        if rec.ros2_error:
+            click.echo(f"imud: {rec.ros2_error}", err=True)
+        stop = threading.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: stop.set())
+        rec.start()
+        start = time.monotonic()
+        end = None if duration is None else start + duration
+        next_status = start + 1.0
+        tty = sys.stderr.isatty()
+        try:
+            while not stop.is_set() and (end is None or time.monotonic() < end):
+                rec.drain(0.1)
+                now = time.monotonic()
+                if now >= next_status:
+                    next_status += 1.0
+                    try:
+                        devs = get_status(s, prefix, timeout=0.5).get("devices", [])
+                        rec.status([d for d in devs if d.get("name") in names], time.time_ns())
+                    except NoDaemon:
+                        pass  # the daemon is restarting: the batches say what they say
+                    _progress(rec, now - start, tty)
+        finally:
+            rec.stop()
+    _summary(rec, time.monotonic() - start, tty)
+
+
+def _progress(rec: Any, elapsed: float, tty: bool) -> None:
+    c = rec.counts.values()
+    samples = sum(x.samples for x in c)
+    line = (
+        f"{elapsed:6.0f} s  {len(rec.devices)} device(s)  {samples:,} samples  "
+        f"{sum(x.lost for x in c):,} lost  {sum(x.dropped for x in c):,} dropped  "
+        f"{rec.out.bytes_written() / 1e6:.1f} MB  {samples / max(elapsed, 1e-9):,.0f} samples/s"
+    )
+    click.echo(("\r" + line) if tty else line, err=True, nl=not tty)
+
+
+def _summary(rec: Any, elapsed: float, tty: bool) -> None:
+    if tty:
+        click.echo("", err=True)
+    paths = rec.out.paths
+    if not paths:
+        _fail(f"nothing arrived from {', '.join(rec.devices)} in {elapsed:.1f} s", 1)
+    size = sum(p.stat().st_size for p in paths)
+    click.echo(f"{', '.join(str(p) for p in paths)}: {size / 1e6:.1f} MB, {elapsed:.1f} s")
+    for name, c in rec.counts.items():
+        extra = (
+            f", {c.dropped:,} batches dropped by the recorder (disk too slow)" if c.dropped else ""
+        )
+        click.echo(f"  {name}: {c.samples:,} samples, {c.lost:,} lost by the daemon{extra}")
+
+
+def _record_csv(
+    device: str, out: Path, raw: bool, duration: float, endpoint: str, prefix: str
+) -> None:
     import imud.client as ic
     from imud.calib.csvio import CsvWriter
     from imud.calib.file import now_iso
     from imud.channels import INVALID_MASK, Channel
 
-    out = Path(csv_path)
     if not out.parent.is_dir():
         _fail(f"--csv {out}: directory {out.parent} does not exist", EXIT_USAGE)
     with _session(endpoint) as s:

@@ -1,0 +1,201 @@
+"""`imud record`'s engine: a subscriber of a running daemon that writes every batch it receives,
+as received, and the ROS 2 messages the daemon's own output would make of them, into MCAP.
+
+The recorder never slows acquisition: it is one more Zenoh subscriber, and its callbacks only
+append to a queue. A writer that cannot keep up (a slow disk) lets the queue grow up to
+`max_queued` batches, then drops the newest and counts them per device (`dropped`), so the
+daemon and the other subscribers never wait on it.
+
+Per device: `imud/<device>/batch` holds the native batches (imud_msgs/msg/Batch: the wire bytes,
+docs/wire-format.md: seq, lost_before, flags, every channel, every stamp), logged at their last
+sample's stamp; the ROS 2 topics (REP-145) hold the messages imud/ros2/messages.py makes from the
+same batches with the daemon's own config, logged at their header stamps; `/diagnostics` once a
+second from the daemon's status. The config file and each device's calibration file go in as
+attachments.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import struct
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from imud.client import data_key
+from imud.config import parse_config
+from imud.recording.mcapfile import Attachment, McapOut
+from imud.recording.schemas import BATCH, batch_cdr
+from imud.ros2.messages import Ros2Messages, Topic
+from imud.wire import peek
+
+log = logging.getLogger("imud.record")
+
+MAX_QUEUED = 65536  # batches held for a slow disk before the newest are dropped (and counted)
+_STAMP = struct.Struct("<iI")  # a ROS 2 message's header stamp, after the 4-byte CDR header
+
+
+def native_topic(prefix: str, device: str) -> str:
+    return f"/{prefix}/{device}/batch"
+
+
+@dataclass
+class Counts:
+    """One device's recording so far."""
+
+    batches: int = 0
+    samples: int = 0
+    lost: int = 0  # samples the daemon said it lost (lost_before), after the first batch
+    dropped: int = 0  # batches the recorder itself could not keep
+    next_seq: int | None = None
+
+
+class Recorder:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        prefix: str,
+        devices: list[str],
+        view: dict[str, Any] | None,
+        out: McapOut,
+        max_queued: int = MAX_QUEUED,
+    ) -> None:
+        self.session = session
+        self.prefix = prefix
+        self.devices = list(devices)
+        self.out = out
+        self.max_queued = max_queued
+        self.counts = {d: Counts() for d in devices}
+        self._queue: collections.deque[tuple[str, bytes]] = collections.deque()
+        self._lock = threading.Lock()
+        self._ready = threading.Condition(self._lock)
+        self._subs: list[Any] = []
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        self.ros2: Ros2Messages | None = None
+        self.ros2_error: str | None = None
+        if view is not None:
+            self._ros2_from(view)
+
+    # --- what the daemon runs ---------------------------------------------------------------
+    def _ros2_from(self, view: dict[str, Any]) -> None:
+        """The daemon's ROS 2 messages, built here from its config. Its calibration files are
+        read from the copies the daemon sent (the covariances use their measured noise)."""
+        raw = dict(view["config"])
+        cal = view.get("calibration") or {}
+        self._tmp = tempfile.TemporaryDirectory(prefix="imud-record-")
+        devices = []
+        for d in raw.get("device", []):
+            d = dict(d)
+            text = (cal.get(d.get("name")) or {}).get("text")
+            if text is not None:
+                copy = Path(self._tmp.name) / f"{d['name']}.cal.toml"
+                copy.write_text(text)
+                d["calibration"] = str(copy)
+            devices.append(d)
+        raw["device"] = devices
+        try:
+            cfg = parse_config(raw)
+        except Exception as e:  # a daemon newer than this recorder: the native data still go in
+            self.ros2_error = f"the daemon's config does not load here ({e}): no ROS 2 messages"
+            log.error("%s", self.ros2_error)
+            return
+        self.ros2 = Ros2Messages(cfg, self._ros, diagnostics=True)
+
+    # --- receiving ----------------------------------------------------------------------------
+    def start(self) -> None:
+        for d in self.devices:
+            key = data_key(d, self.prefix)
+            self._subs.append(self.session.declare_subscriber(key, self._callback(d)))
+
+    def _callback(self, device: str) -> Callable[[zenoh.Sample], None]:
+        def on_sample(sample: zenoh.Sample) -> None:
+            payload = sample.payload.to_bytes()
+            with self._lock:
+                if len(self._queue) >= self.max_queued:
+                    self.counts[device].dropped += 1
+                    return
+                self._queue.append((device, payload))
+                self._ready.notify()
+
+        return on_sample
+
+    def queued(self) -> int:
+        with self._lock:
+            return len(self._queue)
+
+    # --- writing -----------------------------------------------------------------------------
+    def drain(self, timeout_s: float) -> int:
+        """Write what arrived, waiting up to `timeout_s` for something; returns batches written."""
+        with self._lock:
+            if not self._queue:
+                self._ready.wait(timeout_s)
+            items = list(self._queue)
+            self._queue.clear()
+        for device, payload in items:
+            self._write(device, payload)
+        return len(items)
+
+    def _write(self, device: str, payload: bytes) -> None:
+        try:
+            first_seq, n, _, last_ns, lost_before = peek(payload)
+        except Exception:  # not a batch: nothing of it can be recorded as one
+            log.error("%s: a payload that is not an imud batch was not recorded", device)
+            return
+        c = self.counts[device]
+        c.batches += 1
+        c.samples += n
+        if c.next_seq is not None:
+            c.lost += lost_before
+        c.next_seq = first_seq + n
+        if not n:  # no instant to log it at; its loss is counted
+            return
+        self.out.add(native_topic(self.prefix, device), BATCH, last_ns, batch_cdr(payload))
+        if self.ros2 is not None:
+            self.ros2.batch(device, payload)
+
+    def _ros(self, topic: Topic, payloads: Iterator[bytes]) -> None:
+        for p in payloads:
+            sec, nsec = _STAMP.unpack_from(p, 4)
+            self.out.add(topic.name, topic.type_name, sec * 1_000_000_000 + nsec, p)
+
+    def status(self, devices: list[dict[str, Any]], now_ns: int) -> None:
+        """Once a second, the daemon's devices' status: /diagnostics."""
+        if self.ros2 is not None:
+            self.ros2.tick(devices, now_ns)
+
+    def stop(self) -> None:
+        """Stop receiving, write what is queued and what the ROS 2 side holds, close the file."""
+        for s in self._subs:
+            s.undeclare()
+        self._subs = []
+        while self.drain(0.0):
+            pass
+        if self.ros2 is not None:
+            self.ros2.flush()
+            self.ros2.close()
+        self.out.close()
+        if self._tmp is not None:
+            self._tmp.cleanup()
+
+
+def attachments(view: dict[str, Any] | None) -> list[Attachment]:
+    """The daemon's config file and each device's calibration file, as they were read."""
+    if view is None:
+        return []
+    now = time.time_ns()
+    out = []
+    if view.get("text") is not None:
+        name = Path(view.get("path") or "imud.toml").name
+        out.append(Attachment(name, "application/toml", view["text"].encode(), now))
+    for device, cal in sorted((view.get("calibration") or {}).items()):
+        if cal.get("text") is not None:
+            name = f"{device}: {Path(cal['path']).name}"
+            out.append(Attachment(name, "application/toml", cal["text"].encode(), now))
+    return out
