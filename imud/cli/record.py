@@ -45,6 +45,13 @@ from imud.cli.common import EXIT_USAGE, _ask_status, _connect, _device, _fail, _
 @click.option(
     "--split-duration", type=click.FloatRange(min=1.0), help="start a new file every this many s"
 )
+@click.option(
+    "--recover",
+    "broken",
+    type=click.Path(dir_okay=False, exists=True),
+    help="salvage every complete message of an MCAP file whose recorder died into a new, "
+    "indexed file (-o, default BROKEN-recovered.mcap)",
+)
 @_connect
 @_prefix
 def record(
@@ -55,11 +62,17 @@ def record(
     duration: float | None,
     split_size: float | None,
     split_duration: float | None,
+    broken: str | None,
     endpoint: str,
     prefix: str,
 ) -> None:
     """Record a running daemon's devices (all, or DEVICES) to MCAP (-o FILE.mcap), or one
     device to a CSV recording (--csv FILE)."""
+    if broken is not None:
+        if devices or csv_path is not None or duration is not None:
+            _fail("--recover takes the broken file alone (and -o for where it goes)", 2)
+        _recover(Path(broken), None if mcap_path is None else Path(mcap_path))
+        return
     if (mcap_path is None) == (csv_path is None):
         _fail("give -o FILE.mcap (every device, or those named) or --csv FILE (one device)", 2)
     if csv_path is not None:
@@ -126,14 +139,15 @@ def _record_mcap(
         rec.start()
         start = time.monotonic()
         end = None if duration is None else start + duration
-        next_status = start + 1.0
+        next_status = start + 1.0  # a flush point and a progress line, at least 1 s apart
         tty = sys.stderr.isatty()
         try:
             while not stop.is_set() and (end is None or time.monotonic() < end):
                 rec.drain(0.1)
                 now = time.monotonic()
                 if now >= next_status:
-                    next_status += 1.0
+                    next_status = now + 1.0
+                    rec.flush()  # what the line counts is on disk: a crash loses what follows
                     try:
                         devs = get_status(s, prefix, timeout=0.5).get("devices", [])
                         rec.status([d for d in devs if d.get("name") in names], time.time_ns())
@@ -143,6 +157,27 @@ def _record_mcap(
         finally:
             rec.stop()
     _summary(rec, time.monotonic() - start, tty)
+
+
+def _recover(broken: Path, out: Path | None) -> None:
+    from imud.recording.recover import RecoverError, recover
+
+    out = out or broken.with_name(f"{broken.stem}-recovered.mcap")
+    if out.exists():
+        _fail(f"{out} exists; give -o for where the recovered file goes", EXIT_USAGE)
+    try:
+        r = recover(broken, out)
+    except RecoverError as e:
+        _fail(str(e), EXIT_USAGE)
+    except OSError as e:
+        out.unlink(missing_ok=True)
+        _fail(f"cannot write {out}: {e.strerror}", 1)
+    state = "it was complete" if r.complete else f"it ended in a cut-off record ({r.stopped_at})"
+    click.echo(
+        f"{out}: {r.messages:,} messages, {r.attachments} attachments from {broken}; {state}"
+    )
+    for topic, n in sorted(r.per_topic.items()):
+        click.echo(f"  {topic}: {n:,}")
 
 
 def _progress(rec: Any, elapsed: float, tty: bool) -> None:

@@ -165,6 +165,10 @@ class Recorder:
             sec, nsec = _STAMP.unpack_from(p, 4)
             self.out.add(topic.name, topic.type_name, sec * 1_000_000_000 + nsec, p)
 
+    def flush(self) -> None:
+        """Everything written so far to the disk (a flush point)."""
+        self.out.flush()
+
     def status(self, devices: list[dict[str, Any]], now_ns: int) -> None:
         """Once a second, the daemon's devices' status: /diagnostics."""
         if self.ros2 is not None:
