@@ -172,10 +172,15 @@ def _recover(broken: Path, out: Path | None) -> None:
     except OSError as e:
         out.unlink(missing_ok=True)
         _fail(f"cannot write {out}: {e.strerror}", 1)
-    state = "it was complete" if r.complete else f"it ended in a cut-off record ({r.stopped_at})"
-    click.echo(
-        f"{out}: {r.messages:,} messages, {r.attachments} attachments from {broken}; {state}"
+    state = (
+        "it was complete"
+        if r.complete
+        else "it ended without its summary (its recorder stopped before closing it)"
+        if r.stopped_at.startswith("EndOfFile")
+        else f"it ended in a damaged record ({r.stopped_at})"
     )
+    click.echo(f"{out}: {r.messages:,} messages, {r.attachments} attachments from {broken}")
+    click.echo(f"  {state}")
     for topic, n in sorted(r.per_topic.items()):
         click.echo(f"  {topic}: {n:,}")
 
