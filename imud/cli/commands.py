@@ -52,6 +52,12 @@ def _record() -> click.Command:
     return record
 
 
+def _replay() -> click.Command:
+    from imud.cli.replay import replay
+
+    return replay
+
+
 class _Commands(click.Group):
     """The subcommands, the heavy ones (NumPy, the calibration code) loaded only when they run
     or show their help: `imud status` imports no more than it uses."""
@@ -59,6 +65,7 @@ class _Commands(click.Group):
     lazy: ClassVar[dict[str, Callable[[], click.Command]]] = {
         "calibrate": _calibrate,
         "record": _record,
+        "replay": _replay,
     }
 
     def list_commands(self, ctx: click.Context) -> list[str]:

@@ -14,6 +14,7 @@ are left out and counted, as are samples lost on the way.
 
 from __future__ import annotations
 
+import json
 import signal
 import sys
 import threading
@@ -122,7 +123,14 @@ def _record_mcap(
             view: dict[str, Any] | None = get_config(s, prefix, timeout=2.0)
         except NoDaemon:  # an older daemon: the native batches, without ROS 2 messages
             view = None
-        meta = {"imud": {"devices": ",".join(names), "endpoint": endpoint, "prefix": prefix}}
+        meta = {
+            "imud": {"devices": ",".join(names), "endpoint": endpoint, "prefix": prefix},
+            # each device as the daemon described it when the recording began (what replay
+            # answers status queries with): chip, channels, rate, bus
+            "imud.devices": {
+                d["name"]: json.dumps(d) for d in st.get("devices", []) if d["name"] in names
+            },
+        }
         mcap = McapOut(
             out,
             attachments(view),

@@ -1,0 +1,100 @@
+"""`imud replay FILE.mcap [--rate X] [--loop] [--device NAME ...] [--restamp]`: a recording
+published as the live daemon publishes it (imud/recording/replay.py), on a Zenoh listener of its
+own (`--listen`, the daemon's default endpoint unless told), until the file ends (or Ctrl-C)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import threading
+from pathlib import Path
+
+import click
+
+from imud.cli.common import EXIT_USAGE, _fail, _prefix
+from imud.recording.reader import Recording
+
+
+@click.command()
+@click.argument("path", type=click.Path(dir_okay=False, exists=True))
+@click.option(
+    "--rate", type=click.FloatRange(min=0.01, max=1000.0), default=1.0, show_default=True,
+    help="times real time",
+)  # fmt: skip
+@click.option("--loop", is_flag=True, help="play it again and again (stamps and seqs go on)")
+@click.option("--device", "devices", multiple=True, help="only these devices (repeat it)")
+@click.option("--restamp", is_flag=True, help="move the stamps so the first sample is now")
+@click.option(
+    "--listen",
+    default="tcp/127.0.0.1:7450",
+    show_default=True,
+    help="Zenoh endpoint to listen on (where clients --connect)",
+)
+@_prefix
+def replay(
+    path: str,
+    rate: float,
+    loop: bool,
+    devices: tuple[str, ...],
+    restamp: bool,
+    listen: str,
+    prefix: str,
+) -> None:
+    """Publish a recording's devices as the daemon does, at its pace."""
+    import zenoh
+
+    from imud.recording.reader import McapInputError, open_recording
+    from imud.recording.replay import Replay, first_samples
+    from imud.zerrors import describe
+
+    try:
+        rec = open_recording(Path(path))
+    except McapInputError as e:
+        _fail(str(e), EXIT_USAGE)
+    if rec.warning:
+        click.echo(f"imud: {rec.warning}", err=True)
+    names = list(devices) or sorted(rec.devices)
+    unknown = [d for d in names if d not in rec.devices]
+    if unknown:
+        _fail(
+            f"{path} has no device {', '.join(map(repr, unknown))} (it holds "
+            f"{', '.join(sorted(rec.devices))})",
+            EXIT_USAGE,
+        )
+    conf = {
+        "mode": "peer",
+        "listen": {"endpoints": [listen]},
+        "scouting": {"multicast": {"enabled": False}},
+    }
+    try:
+        session = zenoh.open(zenoh.Config.from_json5(json.dumps(conf)))
+    except Exception as e:  # the endpoint is taken (a daemon runs there), or not an endpoint
+        _fail(f"cannot listen on {listen}: {describe(e, [listen])}; give --listen", EXIT_USAGE)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    player = Replay(rec, session, prefix, names, rate, restamp or loop)
+    player.start()
+    click.echo(f"replaying {', '.join(names)} from {path} on {listen} at {rate:g}x", err=True)
+    first = first_samples(rec, names) if loop else {}
+    passes = 0
+    try:
+        while not stop.is_set():
+            done = player.run_pass(stop)
+            passes += 1
+            if not loop or done.batches == 0:
+                break
+            player.next_loop(first, _period_ns(rec, names))
+    finally:
+        player.stop()
+        session.close()  # type: ignore[no-untyped-call]
+    sent = ", ".join(f"{d} {n:,}" for d, n in player.sent.items())
+    click.echo(f"replayed {passes} pass(es): {sent} samples", err=True)
+
+
+def _period_ns(rec: Recording, names: list[str]) -> int:
+    """One sample period of the fastest device (a loop's gap between passes), from the info."""
+    info = rec.info
+    rates = [float(info.get(d, {}).get("odr_hz") or 0) for d in names]
+    fastest = max(rates, default=0.0)
+    return int(1e9 / fastest) if fastest > 0 else 1_000_000

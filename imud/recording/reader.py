@@ -1,0 +1,145 @@
+"""Reading what `imud record` wrote: the devices a file holds, how the daemon described them, and
+their native batches in time order, for replay, export and the offline commands.
+
+A file without its summary (a recorder that died) is read as a stream, with a warning that
+names `imud record --recover`; a file that is not MCAP, is empty, or holds no imud batches is an
+`McapInputError` naming the file and what it holds instead.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mcap.exceptions import McapError
+from mcap.reader import NonSeekingReader, make_reader
+
+from imud.recording.recover import has_footer
+from imud.recording.schemas import BATCH, batch_wire
+
+MAGIC = b"\x89MCAP0\r\n"
+
+
+class McapInputError(ValueError):
+    """A file imud cannot read as a recording: the message names it and says why."""
+
+
+def is_mcap(path: Path) -> bool:
+    try:
+        with open(path, "rb") as f:
+            return f.read(8) == MAGIC
+    except OSError:
+        return False
+
+
+@dataclass
+class Recording:
+    """What a file holds: per device its native topic and the daemon's description of it."""
+
+    path: Path
+    indexed: bool  # has its summary: seekable, counted
+    devices: dict[str, str] = field(default_factory=dict)  # name -> native topic
+    info: dict[str, dict[str, Any]] = field(default_factory=dict)  # name -> status JSON
+    attachments: dict[str, bytes] = field(default_factory=dict)
+    warning: str | None = None
+
+    def batches(self, devices: list[str] | None = None) -> Iterator[tuple[str, int, bytes]]:
+        """(device, log time ns, wire bytes) of the named devices (all by default), in log
+        time order (a stream's own order for a file without its summary)."""
+        topics = {self.devices[d]: d for d in (devices or list(self.devices))}
+        with open(self.path, "rb") as f:
+            if self.indexed:
+                it = make_reader(f).iter_messages(topics=list(topics), log_time_order=True)
+            else:
+                it = NonSeekingReader(f).iter_messages(topics=list(topics), log_time_order=False)
+            try:
+                for _, channel, message in it:
+                    if channel is None or channel.topic not in topics:
+                        continue
+                    yield topics[channel.topic], message.log_time, batch_wire(message.data)
+            except (McapError, EOFError) as e:  # the cut-off end of a file without a summary
+                if self.indexed:
+                    raise McapInputError(f"{self.path}: damaged: {e}") from None
+
+
+def open_recording(path: Path, prefix: str | None = None) -> Recording:
+    """The devices and descriptions in `path`. Raises McapInputError for what is not a
+    recording of imud's."""
+    try:
+        size = path.stat().st_size
+    except OSError as e:
+        raise McapInputError(f"{path}: cannot read: {e.strerror}") from None
+    if size == 0:
+        raise McapInputError(f"{path} is empty (a recorder that died at once?)")
+    if not is_mcap(path):
+        raise McapInputError(f"{path} is not an MCAP file (imud record -o FILE.mcap writes one)")
+    rec = Recording(path, indexed=has_footer(path))
+    channels: list[tuple[str, str]] = []  # (topic, schema name)
+    with open(path, "rb") as f:
+        try:
+            if rec.indexed:
+                reader = make_reader(f)
+                summary = reader.get_summary()
+                if summary is not None:
+                    channels = [
+                        (c.topic, summary.schemas[c.schema_id].name if c.schema_id else "")
+                        for c in summary.channels.values()
+                    ]
+                for m in reader.iter_metadata():
+                    _take_metadata(rec, m.name, m.metadata)
+                for a in reader.iter_attachments():
+                    rec.attachments[a.name] = a.data
+            else:
+                rec.warning = (
+                    f"{path} has no summary (its recorder stopped before closing it): read as a "
+                    f"stream to its last whole message; `imud record --recover {path}` makes an "
+                    "indexed copy"
+                )
+                channels = _stream_channels(rec, f)
+        except (McapError, EOFError, ValueError) as e:
+            raise McapInputError(f"{path}: not a readable MCAP file ({e})") from None
+    for topic, schema in channels:
+        parts = topic.strip("/").split("/")
+        ours = schema == BATCH and len(parts) == 3 and parts[2] == "batch"
+        if ours and (prefix is None or parts[0] == prefix):
+            rec.devices[parts[1]] = topic
+    if not rec.devices:
+        listed = ", ".join(sorted(t for t, _ in channels)) or "none"
+        raise McapInputError(
+            f"{path} holds no imud batches (its topics: {listed}): `imud record -o FILE.mcap` "
+            "writes them"
+        )
+    return rec
+
+
+def _take_metadata(rec: Recording, name: str, data: dict[str, str]) -> None:
+    if name == "imud.devices":
+        for device, text in data.items():
+            try:
+                rec.info[device] = json.loads(text)
+            except ValueError:
+                continue
+
+
+def _stream_channels(rec: Recording, f: Any) -> list[tuple[str, str]]:
+    from mcap.records import Attachment, Channel, Metadata, Schema
+    from mcap.stream_reader import StreamReader
+
+    schemas: dict[int, str] = {}
+    out: list[tuple[str, str]] = []
+    try:
+        for r in StreamReader(f).records:
+            if isinstance(r, Schema):
+                schemas[r.id] = r.name
+            elif isinstance(r, Channel):
+                out.append((r.topic, schemas.get(r.schema_id, "")))
+            elif isinstance(r, Metadata):
+                _take_metadata(rec, r.name, r.metadata)
+            elif isinstance(r, Attachment):
+                rec.attachments[r.name] = r.data
+    except (McapError, EOFError):
+        pass  # the cut-off end
+    return out

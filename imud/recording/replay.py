@@ -1,0 +1,196 @@
+"""`imud replay FILE.mcap`: a recording published as the live daemon publishes, so every
+subscriber (`imud echo`, `imud record`, `imud calibrate --device`, a ROS 2 bridge fed by imud's
+keys) works on it.
+
+Each device's native batches go out on `<prefix>/<device>/imu` at the pace their log times say
+(times `rate`), their bytes as recorded: stamps and sequence numbers unchanged unless
+`restamp`, which moves every stamp by one offset so the first sample is now. A loop (`loop`)
+restamps: each pass continues the last one's stamps and sequence numbers, so a subscriber sees
+one stream. `<prefix>/daemon/status` and `<prefix>/<device>/status` answer with the devices as
+the daemon described them when the recording began (state "replaying"), so clients find them.
+Batches a recording holds uncorrected (no calibration was applied) go out on `/raw` as well,
+for `imud calibrate --device`.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from imud.client import data_key
+from imud.recording.reader import Recording
+from imud.wire import FLAG_CALIBRATED, decode, encode
+
+
+@dataclass
+class Pass:
+    """What one pass over the file sent."""
+
+    batches: int = 0
+    samples: int = 0
+
+
+class Replay:
+    def __init__(
+        self,
+        rec: Recording,
+        session: zenoh.Session,
+        prefix: str,
+        devices: list[str],
+        rate: float = 1.0,
+        restamp: bool = False,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
+        self.rec = rec
+        self.session = session
+        self.prefix = prefix
+        self.devices = devices
+        self.rate = rate
+        self.restamp = restamp
+        self.clock, self.sleep = clock, sleep
+        self.sent = {d: 0 for d in devices}  # samples, over every pass
+        self._pubs: dict[str, Any] = {}
+        self._raw: dict[str, Any] = {}
+        self._queryables: list[Any] = []
+        self._shift_ns = 0  # added to every stamp (restamp, loops)
+        self._seq_shift = {d: 0 for d in devices}  # added to every seq (loops)
+        self._last = {d: (0, 0) for d in devices}  # last (seq end, stamp) sent, for loops
+        self._base: dict[str, dict[str, Any]] = {}  # each device's status, less the live part
+
+    def start(self) -> None:
+        for d in self.devices:
+            self._pubs[d] = self.session.declare_publisher(data_key(d, self.prefix))
+            self._raw[d] = self.session.declare_publisher(data_key(d, self.prefix, raw=True))
+            self._queryables.append(
+                self.session.declare_queryable(
+                    f"{self.prefix}/{d}/status", self._answer(self._describe(d))
+                )
+            )
+        self._queryables.append(
+            self.session.declare_queryable(
+                f"{self.prefix}/daemon/status", self._answer(self._status)
+            )
+        )
+
+    def _answer(self, body: Callable[[], dict[str, Any]]) -> Callable[[zenoh.Query], None]:
+        def answer(q: zenoh.Query) -> None:
+            with q:
+                q.reply(q.key_expr, json.dumps(body()), encoding=zenoh.Encoding.APPLICATION_JSON)
+
+        return answer
+
+    def _describe(self, name: str) -> Callable[[], dict[str, Any]]:
+        return lambda: self._device(name)
+
+    def _device(self, name: str) -> dict[str, Any]:
+        """The device as the daemon described it when the recording began (every field a
+        status has, for a file that did not keep that: from its batches), replaying."""
+        info = self._base.get(name)
+        if info is None:
+            info = self._base[name] = self._described(name)
+        return {
+            **info,
+            "state": "replaying",
+            "samples": self.sent[name],
+            "source": str(self.rec.path),
+        }
+
+    def _described(self, name: str) -> dict[str, Any]:
+        from imud.channels import CHANNELS, channels_in
+        from imud.status import DeviceStatus
+
+        first = next((decode(w) for d, _, w in self.rec.batches([name]) if d == name), None)
+        channels = [] if first is None else [CHANNELS[c].key for c in channels_in(first.mask)]
+        base = DeviceStatus(name, "?", "(recording)", 0.0, channels, False).to_json()
+        return {**base, **self.rec.info.get(name, {})}
+
+    def _status(self) -> dict[str, Any]:
+        return {
+            "replay": str(self.rec.path),
+            "devices": [self._device(d) for d in self.devices],
+            "buses": [],
+        }
+
+    def run_pass(self, stop: threading.Event) -> Pass:
+        """Publish the file once at its pace; returns what it sent (stops early on `stop`)."""
+        out = Pass()
+        t0_log: int | None = None
+        t0 = self.clock()
+        first_pass_shift: int | None = None
+        for device, log_ns, wire in self.rec.batches(self.devices):
+            if stop.is_set():
+                break
+            if t0_log is None:
+                t0_log = log_ns
+                if self.restamp and first_pass_shift is None and self._shift_ns == 0:
+                    first_pass_shift = time.time_ns() - log_ns
+                    self._shift_ns = first_pass_shift
+            due = t0 + (log_ns - t0_log) / 1e9 / self.rate
+            wait = due - self.clock()
+            if wait > 0:
+                self.sleep(wait)
+            payload = self._shifted(device, wire)
+            self._pubs[device].put(payload)
+            if not (decode(payload).flags & FLAG_CALIBRATED):
+                self._raw[device].put(payload)
+            b = decode(payload)
+            self._last[device] = (b.first_seq + b.count, int(b.t_ns[-1]) if b.count else 0)
+            out.batches += 1
+            out.samples += b.count
+            self.sent[device] += b.count
+        return out
+
+    def _shifted(self, device: str, wire: bytes) -> bytes:
+        if not self._shift_ns and not self._seq_shift[device]:
+            return wire
+        b = decode(wire)
+        return encode(
+            b.device,
+            b.first_seq + self._seq_shift[device],
+            b.t_ns + np.int64(self._shift_ns),
+            b.channels,
+            b.sample_flags,
+            kind=b.kind,
+            flags=b.flags,
+            lost_before=b.lost_before,
+        )
+
+    def next_loop(self, first_stamp: dict[str, tuple[int, int]], period_ns: int) -> None:
+        """Before another pass: stamps and seqs continue where this pass ended.
+        first_stamp: per device, the file's first (seq, stamp)."""
+        ends = [stamp for _, stamp in self._last.values() if stamp]
+        starts = [stamp for _, stamp in first_stamp.values() if stamp]
+        if ends and starts:
+            self._shift_ns = max(ends) + period_ns - min(starts)
+        for d in self.devices:
+            seq_end, _ = self._last[d]
+            first_seq, _ = first_stamp.get(d, (0, 0))
+            self._seq_shift[d] = seq_end - first_seq
+
+    def stop(self) -> None:
+        for q in self._queryables:
+            q.undeclare()
+        for p in (*self._pubs.values(), *self._raw.values()):
+            p.undeclare()
+        self._queryables, self._pubs, self._raw = [], {}, {}
+
+
+def first_samples(rec: Recording, devices: list[str]) -> dict[str, tuple[int, int]]:
+    """Per device, the file's first (seq, stamp): where a loop starts again from."""
+    out: dict[str, tuple[int, int]] = {}
+    for device, _, wire in rec.batches(devices):
+        if device not in out:
+            b = decode(wire)
+            if b.count:
+                out[device] = (b.first_seq, int(b.t_ns[0]))
+        if len(out) == len(devices):
+            break
+    return out
