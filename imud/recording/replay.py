@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from imud import __version__
 from imud.client import data_key
 from imud.recording.reader import Recording
 from imud.wire import FLAG_CALIBRATED, decode, encode
@@ -64,8 +65,10 @@ class Replay:
         self._seq_shift = {d: 0 for d in devices}  # added to every seq (loops)
         self._last = {d: (0, 0) for d in devices}  # last (seq end, stamp) sent, for loops
         self._base: dict[str, dict[str, Any]] = {}  # each device's status, less the live part
+        self._started = clock()
 
     def start(self) -> None:
+        self._started = self.clock()
         for d in self.devices:
             self._pubs[d] = self.session.declare_publisher(data_key(d, self.prefix))
             self._raw[d] = self.session.declare_publisher(data_key(d, self.prefix, raw=True))
@@ -114,6 +117,8 @@ class Replay:
 
     def _status(self) -> dict[str, Any]:
         return {
+            "version": f"{__version__} (replaying {self.rec.path.name})",
+            "uptime_s": round(self.clock() - self._started, 1),
             "replay": str(self.rec.path),
             "devices": [self._device(d) for d in self.devices],
             "buses": [],
