@@ -197,12 +197,15 @@ class Job:
         self.kind = kind
         self.o = opts
         self.as_json = bool(opts["as_json"])
-        if (opts["from_csv"] is None) == (opts["device"] is None):
+        from_mcap = opts["from_csv"] is not None and _is_mcap(opts["from_csv"])
+        if (opts["from_csv"] is None) == (opts["device"] is None) and not from_mcap:
             _fail(
-                "give --from FILE.csv (offline) or --device NAME (live), one of the two",
+                "give --from FILE.csv (offline) or --device NAME (live), one of the two "
+                "(--from FILE.mcap takes --device for which of its devices)",
                 EXIT_USAGE,
                 self.as_json,
             )
+        self.from_mcap = from_mcap
         self.chip: str | None = opts.get("chip")
         self.device_name: str | None = opts.get("device")
         self.out: Path | None = Path(opts["out"]) if opts.get("out") else None
@@ -260,6 +263,8 @@ class Job:
         from imud.calib.imutk import is_imu_tk
 
         fmt = self.o.get("source_format", "auto")
+        if self.from_mcap:
+            return self._mcap(Path(self.o["from_csv"]))
         if self.o["from_csv"] is not None:
             looks = is_imu_tk(Path(self.o["from_csv"]))
             if looks and self.kind in ("mag", "temp") and fmt != "csv":
@@ -362,6 +367,50 @@ class Job:
             if spec is not None:
                 return Grade(spec.grade)
         return Grade.CONSUMER
+
+    def _mcap(self, path: Path) -> Any:
+        """A device of an MCAP recording (imud record -o), its samples as recorded."""
+        from imud.calib.csvio import SATURATED_MASK
+        from imud.calib.recording import Recording
+        from imud.recording.export import device_data
+        from imud.recording.reader import McapInputError, open_recording
+
+        try:
+            rec = open_recording(path)
+            if rec.warning:
+                click.echo(f"imud: {rec.warning}", err=True)
+            name = self.o.get("device")
+            if name is None:
+                if len(rec.devices) != 1:
+                    _fail(
+                        f"{path} holds {', '.join(sorted(rec.devices))}: give --device NAME",
+                        EXIT_USAGE,
+                        self.as_json,
+                    )
+                name = next(iter(rec.devices))
+            d = device_data(rec, name)
+        except McapInputError as e:
+            _fail(str(e), EXIT_USAGE, self.as_json)
+        if d.calibrated:
+            _fail(
+                f"{path}: {name}'s samples were corrected by a calibration when recorded; "
+                "calibrate from uncorrected ones (remove the device's calibration, record again)",
+                EXIT_USAGE,
+                self.as_json,
+            )
+        self.chip = self.chip or rec.info.get(name, {}).get("chip")
+        self.device_name = name
+        n = d.t_ns.size
+        absent = np.full((n, 3), np.nan)
+        return Recording(
+            d.t_ns,
+            absent if d.accel is None else d.accel,
+            absent.copy() if d.gyro is None else d.gyro,
+            d.temp[:, 0] if d.temp is not None and d.temp.ndim == 2 else d.temp,
+            d.mag,
+            (d.flags & np.uint32(SATURATED_MASK)) != 0,
+            f"{path} ({name})",
+        )
 
     def _counts(self, sensor: str) -> tuple[float, float] | None:
         """--accel-counts / --gyro-counts, parsed (a bad one is a usage error, said)."""
@@ -936,3 +985,9 @@ def apply_cmd(
         f"{out}: {rec.n} samples corrected"
         + (f"; {n_out} outside the calibration's temperature span (flagged)" if n_out else "")
     )
+
+
+def _is_mcap(path: str) -> bool:
+    from imud.recording.reader import is_mcap
+
+    return is_mcap(Path(path))

@@ -52,6 +52,12 @@ def _record() -> click.Command:
     return record
 
 
+def _export() -> click.Command:
+    from imud.cli.export import export
+
+    return export
+
+
 def _replay() -> click.Command:
     from imud.cli.replay import replay
 
@@ -66,6 +72,7 @@ class _Commands(click.Group):
         "calibrate": _calibrate,
         "record": _record,
         "replay": _replay,
+        "export": _export,
     }
 
     def list_commands(self, ctx: click.Context) -> list[str]:

@@ -1,0 +1,41 @@
+"""`imud export FILE.mcap --csv OUT [--device NAME]`: one device of a recording as imud's CSV
+(docs/recording-csv.md), what other tools and spreadsheets read."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from imud.cli.common import EXIT_USAGE, _fail
+
+
+@click.command()
+@click.argument("path", type=click.Path(dir_okay=False, exists=True))
+@click.option(
+    "--csv", "csv_path", required=True, type=click.Path(dir_okay=False), help="the CSV to write"
+)
+@click.option("--device", help="the device (needed when the file holds more than one)")
+def export(path: str, csv_path: str, device: str | None) -> None:
+    """Write one device of an MCAP recording as a CSV recording."""
+    from imud.recording.export import to_csv
+    from imud.recording.reader import McapInputError, open_recording
+
+    out = Path(csv_path)
+    if not out.parent.is_dir():
+        _fail(f"--csv {out}: directory {out.parent} does not exist", EXIT_USAGE)
+    try:
+        rec = open_recording(Path(path))
+        if rec.warning:
+            click.echo(f"imud: {rec.warning}", err=True)
+        if device is None:
+            if len(rec.devices) != 1:
+                _fail(
+                    f"{path} holds {', '.join(sorted(rec.devices))}: give --device NAME", EXIT_USAGE
+                )
+            device = next(iter(rec.devices))
+        d = to_csv(rec, device, out)
+    except McapInputError as e:
+        _fail(str(e), EXIT_USAGE)
+    extra = [f"{n:,} {what}" for n, what in ((d.invalid, "invalid (left out)"), (d.lost, "lost"))]
+    click.echo(f"{out}: {d.t_ns.size:,} samples of {device}; " + ", ".join(extra))
