@@ -25,6 +25,11 @@ from imud.recording.reader import Recording
 @click.option("--device", "devices", multiple=True, help="only these devices (repeat it)")
 @click.option("--restamp", is_flag=True, help="move the stamps so the first sample is now")
 @click.option(
+    "--wait",
+    is_flag=True,
+    help="start once every device's stream has a subscriber (start a recorder or echo then)",
+)
+@click.option(
     "--listen",
     default="tcp/127.0.0.1:7450",
     show_default=True,
@@ -37,6 +42,7 @@ def replay(
     loop: bool,
     devices: tuple[str, ...],
     restamp: bool,
+    wait: bool,
     listen: str,
     prefix: str,
 ) -> None:
@@ -79,6 +85,10 @@ def replay(
     first = first_samples(rec, names) if loop else {}
     passes = 0
     try:
+        if wait:
+            click.echo("waiting for a subscriber of every device (Ctrl-C to stop)", err=True)
+            while not stop.is_set() and not player.subscribed():
+                stop.wait(0.05)
         while not stop.is_set():
             done = player.run_pass(stop)
             passes += 1

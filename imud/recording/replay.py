@@ -83,6 +83,10 @@ class Replay:
             )
         )
 
+    def subscribed(self) -> bool:
+        """Whether every device's stream has a subscriber (a recorder, an echo) by now."""
+        return all(bool(p.matching_status.matching) for p in self._pubs.values())
+
     def _answer(self, body: Callable[[], dict[str, Any]]) -> Callable[[zenoh.Query], None]:
         def answer(q: zenoh.Query) -> None:
             with q:

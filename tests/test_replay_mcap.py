@@ -1,0 +1,187 @@
+"""What a recording is good for, through the real CLI: `imud replay` publishes it as the daemon
+does (a second recorder, `imud echo` and `imud status` take it for a daemon), `imud export`
+writes its CSV, `imud calibrate --from FILE.mcap` calibrates from it. The round trip: record the
+daemon, replay, record the replay: the native channels are the same bytes, batch for batch.
+Expected values come from the test's own decoding of the recorded batches."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer
+
+from imud.recording.schemas import batch_wire
+from imud.wire import decode
+from tests.daemon_fixture import DaemonProc
+from tests.helpers import free_port
+
+CONFIG = """
+[[device]]
+name = "still0"
+chip = "mpu6050"
+bus = { kind = "sim", bus = "simP", address = 0x68 }
+odr_hz = 500
+dlpf_hz = 98
+[device.sim]
+seed = 9
+
+[[device]]
+name = "fast0"
+chip = "icm42688p"
+bus = { kind = "sim", bus = "spiP", cs = 0 }
+odr_hz = 2000
+"""
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[DaemonProc, Path]]:
+    d = DaemonProc(Path(tmp_path_factory.mktemp("replay")), CONFIG)
+    d.wait_started()
+    out = d.config.parent / "orig.mcap"
+    r = d.cli("record", "--connect", d.endpoint, "-o", str(out), "--duration", "3")
+    assert r.returncode == 0, r.stdout + r.stderr
+    yield d, out
+    code, _ = d.stop()
+    assert code == 0, d.log.read_text()
+
+
+def natives(path: Path) -> dict[str, list[bytes]]:
+    out: dict[str, list[bytes]] = {}
+    with open(path, "rb") as f:
+        for _, ch, m in make_reader(f).iter_messages():
+            if ch is not None and ch.topic.endswith("/batch"):
+                out.setdefault(ch.topic.split("/")[2], []).append(batch_wire(m.data))
+    return out
+
+
+def imud(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "imud", *args], capture_output=True, text=True, timeout=timeout
+    )
+
+
+def test_replay_then_record_gives_the_same_native_bytes(
+    recording: tuple[DaemonProc, Path], tmp_path: Path
+) -> None:
+    _, orig = recording
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    player = subprocess.Popen(
+        [sys.executable, "-m", "imud", "replay", str(orig), "--listen", endpoint, "--wait",
+         "--rate", "2"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        again = tmp_path / "again.mcap"
+        for _ in range(100):  # until the player listens
+            r = imud("status", "--connect", endpoint, "--json", timeout=30)
+            if r.returncode == 0:
+                break
+            time.sleep(0.1)
+        assert r.returncode == 0, r.stderr
+        assert '"state": "replaying"' in r.stdout and '"chip": "icm42688p"' in r.stdout
+        r = imud("record", "--connect", endpoint, "-o", str(again), "--duration", "4")
+        assert r.returncode == 0, r.stdout + r.stderr
+        _, err = player.communicate(timeout=60)
+    finally:
+        player.kill()
+    assert player.returncode == 0, err
+    a, b = natives(orig), natives(again)
+    assert set(a) == set(b) == {"still0", "fast0"}
+    for device in a:
+        assert b[device] == a[device], device  # batch for batch, byte for byte
+
+
+def test_export_writes_the_recorded_samples(
+    recording: tuple[DaemonProc, Path], tmp_path: Path
+) -> None:
+    _, orig = recording
+    out = tmp_path / "still0.csv"
+    r = imud("export", str(orig), "--csv", str(out), "--device", "still0")
+    assert r.returncode == 0, r.stdout + r.stderr
+    rows = np.loadtxt(out, delimiter=",", comments="#", skiprows=1 + 6)
+    batches = [decode(p) for p in natives(orig)["still0"]]
+    t = np.concatenate([b.t_ns for b in batches])
+    accel = np.concatenate([b.accel for b in batches])
+    assert rows.shape[0] == t.size
+    np.testing.assert_array_equal(rows[:, 1:4].astype(np.float32), accel)
+    assert "# samples: raw (uncorrected)" in out.read_text()[:400]
+
+
+def test_calibrate_reads_a_device_of_the_recording(
+    recording: tuple[DaemonProc, Path], tmp_path: Path
+) -> None:
+    """The still device's gyro bias from the MCAP file is its recorded samples' mean; the same
+    as from the CSV export (the other route into the same estimator)."""
+    import json
+
+    _, orig = recording
+    r = imud("calibrate", "gyro", "--from", str(orig), "--device", "still0", "--dry-run",
+             "--json")  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
+    bias = np.array(json.loads(r.stdout)["bias"])
+    gyro = np.concatenate([decode(p).gyro for p in natives(orig)["still0"]]).astype(np.float64)
+    np.testing.assert_allclose(bias, gyro.mean(axis=0), rtol=0, atol=1e-12)
+    csv = tmp_path / "still0.csv"
+    assert imud("export", str(orig), "--csv", str(csv), "--device", "still0").returncode == 0
+    r = imud("calibrate", "gyro", "--from", str(csv), "--dry-run", "--json")
+    # the CSV holds each float32 as 9 digits, read back as float64: equal to 1e-9 rad/s
+    np.testing.assert_allclose(json.loads(r.stdout)["bias"], bias, rtol=0, atol=1e-9)
+    r = imud("calibrate", "gyro", "--from", str(orig), "--dry-run")
+    assert r.returncode == 2 and "give --device NAME" in r.stderr
+
+
+def foreign(path: Path) -> None:
+    """An MCAP file of someone else's: one JSON topic, no imud batches."""
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start(profile="", library="test")
+        sid = w.register_schema("Pose", "jsonschema", b"{}")
+        cid = w.register_channel("/pose", "json", sid)
+        w.add_message(cid, 1, b"{}", 1)
+        w.finish()
+
+
+@pytest.mark.parametrize(
+    ("make", "args", "says"),
+    [
+        (lambda p: p.write_bytes(b""), ("replay", "{f}"), "is empty"),
+        (lambda p: p.write_text("a,b\n1,2\n"), ("replay", "{f}"), "is not an MCAP file"),
+        (foreign, ("replay", "{f}"), "holds no imud batches (its topics: /pose)"),
+        (foreign, ("export", "{f}", "--csv", "{d}/x.csv"), "holds no imud batches"),
+        (None, ("replay", "{orig}", "--device", "nope"), "has no device 'nope'"),
+        (None, ("export", "{orig}", "--csv", "{d}/x.csv"), "give --device NAME"),
+        (None, ("replay", "{orig}", "--listen", "{taken}"), "cannot listen on"),
+    ],
+)
+def test_bad_input_is_said(
+    recording: tuple[DaemonProc, Path], tmp_path: Path, make: object, args: tuple[str, ...],
+    says: str,
+) -> None:  # fmt: skip
+    d, orig = recording
+    f = tmp_path / "in.mcap"
+    if callable(make):
+        make(f)
+    argv = [a.format(f=f, d=tmp_path, orig=orig, taken=d.endpoint) for a in args]
+    r = imud(*argv, timeout=60)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert says in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_a_file_without_its_summary_is_read_with_a_warning(
+    recording: tuple[DaemonProc, Path], tmp_path: Path
+) -> None:
+    _, orig = recording
+    cut = tmp_path / "cut.mcap"
+    data = orig.read_bytes()
+    cut.write_bytes(data[: len(data) // 2])
+    out = tmp_path / "cut.csv"
+    r = imud("export", str(cut), "--csv", str(out), "--device", "still0")
+    assert r.returncode == 0, r.stderr
+    assert "has no summary" in r.stderr and "imud record --recover" in r.stderr
