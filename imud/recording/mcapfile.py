@@ -7,7 +7,7 @@ wall time (and fsyncs them), so a recorder killed with SIGKILL, or a power cut, 
 that much: the file is then complete up to the last flush but has no footer, which `imud record
 --recover` (imud/recording/recover.py) turns into an indexed file. A library's default 1 MiB
 chunk would hold seconds of a fast device, and the first chunk nothing until it fills
-(../reference: a killed writer left 0 bytes).
+(a writer killed with its defaults leaves 0 bytes on disk).
 
 Splitting: `split_bytes` / `split_s` start a new file (`NAME_001.mcap`, ...) once the current
 one reaches that size or span; each file is whole on its own (schemas, channels, attachments).
