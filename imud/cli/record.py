@@ -151,7 +151,7 @@ def _record_mcap(
         tty = sys.stderr.isatty()
         try:
             while not stop.is_set() and (end is None or time.monotonic() < end):
-                rec.drain(0.1)
+                rec.drain(0.2)
                 now = time.monotonic()
                 if now >= next_status:
                     next_status = now + 1.0
@@ -214,7 +214,7 @@ def _summary(rec: Any, elapsed: float, tty: bool) -> None:
     click.echo(f"{', '.join(str(p) for p in paths)}: {size / 1e6:.1f} MB, {elapsed:.1f} s")
     for name, c in rec.counts.items():
         extra = (
-            f", {c.dropped:,} batches dropped by the recorder (disk too slow)" if c.dropped else ""
+            f", {c.dropped:,} samples dropped by the recorder (disk too slow)" if c.dropped else ""
         )
         click.echo(f"  {name}: {c.samples:,} samples, {c.lost:,} lost by the daemon{extra}")
 

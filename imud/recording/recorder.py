@@ -1,9 +1,10 @@
 """`imud record`'s engine: a subscriber of a running daemon that writes every batch it receives,
 as received, and the ROS 2 messages the daemon's own output would make of them, into MCAP.
 
-The recorder never slows acquisition: it is one more Zenoh subscriber, and its callbacks only
-append to a queue. A writer that cannot keep up (a slow disk) lets the queue grow up to
-`max_queued` batches, then drops the newest and counts them per device (`dropped`), so the
+The recorder never slows acquisition: it is one more Zenoh subscriber, whose samples Zenoh puts
+in a ring of `max_queued` batches a device that the writer drains a few times a second. A writer
+that cannot keep up (a slow disk) lets the ring fill, and then its oldest batches go: the seq gap
+they leave, which no batch's lost_before announces, is counted per device (`dropped`), and the
 daemon and the other subscribers never wait on it.
 
 Per device: `imud/<device>/batch` holds the native batches (imud_msgs/msg/Batch: the wire bytes,
@@ -16,13 +17,11 @@ attachments.
 
 from __future__ import annotations
 
-import collections
 import logging
 import struct
 import tempfile
-import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -38,7 +37,8 @@ from imud.wire import peek
 
 log = logging.getLogger("imud.record")
 
-MAX_QUEUED = 65536  # batches held for a slow disk before the newest are dropped (and counted)
+MAX_QUEUED = 16384  # batches a device held for a slow disk before the oldest go (and are counted)
+HOLD_MS = 200.0  # of a stream made into ROS 2 messages in one step: fewer, larger NumPy steps
 _STAMP = struct.Struct("<iI")  # a ROS 2 message's header stamp, after the 4-byte CDR header
 
 
@@ -53,7 +53,7 @@ class Counts:
     batches: int = 0
     samples: int = 0
     lost: int = 0  # samples the daemon said it lost (lost_before), after the first batch
-    dropped: int = 0  # batches the recorder itself could not keep
+    dropped: int = 0  # samples the recorder itself could not keep (a full ring)
     next_seq: int | None = None
 
 
@@ -73,10 +73,7 @@ class Recorder:
         self.out = out
         self.max_queued = max_queued
         self.counts = {d: Counts() for d in devices}
-        self._queue: collections.deque[tuple[str, bytes]] = collections.deque()
-        self._lock = threading.Lock()
-        self._ready = threading.Condition(self._lock)
-        self._subs: list[Any] = []
+        self._subs: list[tuple[str, Any]] = []
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
         self.ros2: Ros2Messages | None = None
         self.ros2_error: str | None = None
@@ -106,41 +103,29 @@ class Recorder:
             self.ros2_error = f"the daemon's config does not load here ({e}): no ROS 2 messages"
             log.error("%s", self.ros2_error)
             return
-        self.ros2 = Ros2Messages(cfg, self._ros, diagnostics=True)
+        self.ros2 = Ros2Messages(cfg, self._ros, diagnostics=True, hold_ms=HOLD_MS)
 
     # --- receiving ----------------------------------------------------------------------------
     def start(self) -> None:
+        """One subscriber a device, each into a ring of `max_queued` batches that Zenoh fills and
+        this drains: no Python thread runs a sample, and a full ring drops its oldest, never
+        waiting on the daemon (the seq gap it leaves is counted as the recorder's)."""
         for d in self.devices:
-            key = data_key(d, self.prefix)
-            self._subs.append(self.session.declare_subscriber(key, self._callback(d)))
+            ring: Any = zenoh.handlers.RingChannel(self.max_queued)
+            sub = self.session.declare_subscriber(data_key(d, self.prefix), ring)
+            self._subs.append((d, sub))
 
-    def _callback(self, device: str) -> Callable[[zenoh.Sample], None]:
-        def on_sample(sample: zenoh.Sample) -> None:
-            payload = sample.payload.to_bytes()
-            with self._lock:
-                if len(self._queue) >= self.max_queued:
-                    self.counts[device].dropped += 1
-                    return
-                self._queue.append((device, payload))
-                self._ready.notify()
-
-        return on_sample
-
-    def queued(self) -> int:
-        with self._lock:
-            return len(self._queue)
-
-    # --- writing -----------------------------------------------------------------------------
     def drain(self, timeout_s: float) -> int:
-        """Write what arrived, waiting up to `timeout_s` for something; returns batches written."""
-        with self._lock:
-            if not self._queue:
-                self._ready.wait(timeout_s)
-            items = list(self._queue)
-            self._queue.clear()
-        for device, payload in items:
-            self._write(device, payload)
-        return len(items)
+        """Write what arrived, after waiting `timeout_s` for more (the writer wakes a few times a
+        second and takes what came, not once a batch); returns batches written."""
+        if timeout_s > 0:
+            time.sleep(timeout_s)
+        n = 0
+        for device, sub in self._subs:
+            while (sample := sub.try_recv()) is not None:
+                self._write(device, sample.payload.to_bytes())
+                n += 1
+        return n
 
     def _write(self, device: str, payload: bytes) -> None:
         try:
@@ -153,6 +138,8 @@ class Recorder:
         c.samples += n
         if c.next_seq is not None:
             c.lost += lost_before
+            # a gap the daemon did not announce: batches the ring dropped before this drained
+            c.dropped += max(0, first_seq - c.next_seq - lost_before)
         c.next_seq = first_seq + n
         if not n:  # no instant to log it at; its loss is counted
             return
@@ -175,12 +162,11 @@ class Recorder:
             self.ros2.tick(devices, now_ns)
 
     def stop(self) -> None:
-        """Stop receiving, write what is queued and what the ROS 2 side holds, close the file."""
-        for s in self._subs:
+        """Write what is queued, stop receiving, write what the ROS 2 side holds, close the file."""
+        self.drain(0.0)
+        for _, s in self._subs:
             s.undeclare()
         self._subs = []
-        while self.drain(0.0):
-            pass
         if self.ros2 is not None:
             self.ros2.flush()
             self.ros2.close()

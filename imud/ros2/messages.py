@@ -91,11 +91,14 @@ class Ros2Messages:
         emit: Emit,
         on_topic: Callable[[Topic, bool], None] | None = None,
         diagnostics: bool | None = None,
+        hold_ms: float | None = None,
     ) -> None:
         self.settings = cfg.ros2
         self._emit = emit
         self._on_topic = on_topic or (lambda t, added: None)
-        self._hold_ns = int(cfg.ros2.batch_ms * 1e6)
+        # how much of a stream to hold before a step (the same messages whatever it is: the
+        # decimator groups by seq; a recorder, which need not be prompt, holds longer)
+        self._hold_ns = int((cfg.ros2.batch_ms if hold_ms is None else hold_ms) * 1e6)
         # topics by (name, type, frame_id): a device rebuilt by a reload keeps its topics, so
         # subscribers see one publisher that never restarted
         self._topics: dict[tuple[str, str, str], Topic] = {}
