@@ -58,6 +58,12 @@ def _export() -> click.Command:
     return export
 
 
+def _view() -> click.Command:
+    from imud.cli.view import view
+
+    return view
+
+
 def _replay() -> click.Command:
     from imud.cli.replay import replay
 
@@ -73,6 +79,7 @@ class _Commands(click.Group):
         "record": _record,
         "replay": _replay,
         "export": _export,
+        "view": _view,
     }
 
     def list_commands(self, ctx: click.Context) -> list[str]:

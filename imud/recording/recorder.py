@@ -21,16 +21,16 @@ import logging
 import struct
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import zenoh
 
 from imud.client import data_key
 from imud.config import parse_config
-from imud.recording.mcapfile import Attachment, McapOut
+from imud.recording.mcapfile import Attachment
 from imud.recording.schemas import BATCH, batch_cdr
 from imud.ros2.messages import Ros2Messages, Topic
 from imud.wire import peek
@@ -44,6 +44,17 @@ _STAMP = struct.Struct("<iI")  # a ROS 2 message's header stamp, after the 4-byt
 
 def native_topic(prefix: str, device: str) -> str:
     return f"/{prefix}/{device}/batch"
+
+
+class Sink(Protocol):
+    """Where the recorder's messages go: an MCAP file (McapOut), a Foxglove server."""
+
+    paths: list[Path]
+
+    def add(self, topic: str, type_name: str, log_ns: int, payload: bytes) -> None: ...
+    def flush(self) -> None: ...
+    def close(self) -> None: ...
+    def bytes_written(self) -> int: ...
 
 
 @dataclass
@@ -64,14 +75,23 @@ class Recorder:
         prefix: str,
         devices: list[str],
         view: dict[str, Any] | None,
-        out: McapOut,
+        out: Sink,
         max_queued: int = MAX_QUEUED,
+        native: bool = True,
+        on_status: Callable[[list[dict[str, Any]], int], None] | None = None,
+        hold_ms: float = HOLD_MS,
     ) -> None:
+        """native: write the native batches too (a file: yes; a live view: no). on_status: also
+        given the devices' status once a second. hold_ms: how much of a stream each ROS 2 step
+        takes (a view wants them sooner than a file)."""
         self.session = session
         self.prefix = prefix
         self.devices = list(devices)
         self.out = out
         self.max_queued = max_queued
+        self.native = native
+        self.on_status = on_status
+        self.hold_ms = hold_ms
         self.counts = {d: Counts() for d in devices}
         self._subs: list[tuple[str, Any]] = []
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
@@ -103,7 +123,7 @@ class Recorder:
             self.ros2_error = f"the daemon's config does not load here ({e}): no ROS 2 messages"
             log.error("%s", self.ros2_error)
             return
-        self.ros2 = Ros2Messages(cfg, self._ros, diagnostics=True, hold_ms=HOLD_MS)
+        self.ros2 = Ros2Messages(cfg, self._ros, diagnostics=True, hold_ms=self.hold_ms)
 
     # --- receiving ----------------------------------------------------------------------------
     def start(self) -> None:
@@ -143,7 +163,8 @@ class Recorder:
         c.next_seq = first_seq + n
         if not n:  # no instant to log it at; its loss is counted
             return
-        self.out.add(native_topic(self.prefix, device), BATCH, last_ns, batch_cdr(payload))
+        if self.native:
+            self.out.add(native_topic(self.prefix, device), BATCH, last_ns, batch_cdr(payload))
         if self.ros2 is not None:
             self.ros2.batch(device, payload)
 
@@ -160,6 +181,8 @@ class Recorder:
         """Once a second, the daemon's devices' status: /diagnostics."""
         if self.ros2 is not None:
             self.ros2.tick(devices, now_ns)
+        if self.on_status is not None:
+            self.on_status(devices, now_ns)
 
     def stop(self) -> None:
         """Write what is queued, stop receiving, write what the ROS 2 side holds, close the file."""

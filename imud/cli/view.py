@@ -1,0 +1,152 @@
+"""`imud view [FILE.mcap] [--port 8765] [--layout LAYOUT.json]`: a Foxglove WebSocket server on
+127.0.0.1 (imud/recording/foxglove_out.py) with a running daemon's devices (their ROS 2
+messages, /diagnostics, /imud/status), or a recording's messages at their pace, until Ctrl-C.
+Open it in Foxglove: Open connection, Foxglove WebSocket, ws://localhost:8765; `--layout` writes
+a layout for the devices to import there (Layouts, Import from file). Needs the `view` extra
+(foxglove-sdk)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import click
+
+from imud.cli.common import EXIT_USAGE, _ask_status, _connect, _fail, _prefix, _session
+
+
+@click.command()
+@click.argument("path", required=False, type=click.Path(dir_okay=False, exists=True))
+@click.option("--port", type=click.IntRange(0, 65535), default=8765, show_default=True)
+@click.option(
+    "--layout",
+    "layout_path",
+    type=click.Path(dir_okay=False),
+    help="write a Foxglove layout for the devices (plots of accel, gyro, temperature, health)",
+)
+@click.option("--loop", is_flag=True, help="a recording: play it again and again")
+@_connect
+@_prefix
+def view(
+    path: str | None,
+    port: int,
+    layout_path: str | None,
+    loop: bool,
+    endpoint: str,
+    prefix: str,
+) -> None:
+    """Serve a running daemon's devices (or FILE.mcap) to Foxglove over WebSocket."""
+    from imud.recording.foxglove_out import FoxgloveOut
+
+    try:
+        import foxglove  # noqa: F401
+    except ImportError as e:
+        _fail(f"imud view needs foxglove-sdk: pip install 'imud[view]' ({e})", EXIT_USAGE)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        out = FoxgloveOut(port)
+    except Exception as e:  # the port is taken
+        _fail(f"cannot serve on 127.0.0.1:{port}: {e}; give --port", EXIT_USAGE)
+    try:
+        if path is None:
+            _live(out, stop, layout_path, endpoint, prefix)
+        else:
+            _file(out, stop, Path(path), layout_path, loop)
+    finally:
+        out.close()
+
+
+def _announce(out: Any, what: str) -> None:
+    click.echo(
+        f"serving {what} to Foxglove on ws://127.0.0.1:{out.port} (Ctrl-C to stop)", err=True
+    )
+
+
+def _write_layout(path: str | None, devices: list[dict[str, Any]], namespace: str) -> None:
+    if path is None:
+        return
+    from imud.recording.foxglove_out import layout
+
+    Path(path).write_text(json.dumps(layout(devices, namespace), indent=2))
+    click.echo(f"{path}: a layout for {', '.join(d['name'] for d in devices)}", err=True)
+
+
+def _live(
+    out: Any, stop: threading.Event, layout_path: str | None, endpoint: str, prefix: str
+) -> None:
+    from imud.recording.recorder import Recorder
+    from imud.session import NoDaemon, get_config, get_status
+
+    with _session(endpoint) as s:
+        st = _ask_status(s, endpoint, prefix, 2.0)
+        devices = st.get("devices", [])
+        if not devices:
+            _fail(f"the daemon at {endpoint} runs no devices", EXIT_USAGE)
+        try:
+            cfg: dict[str, Any] | None = get_config(s, prefix, timeout=2.0)
+        except NoDaemon:
+            cfg = None
+        namespace = ((cfg or {}).get("config", {}).get("ros2") or {}).get("namespace", "")
+        _write_layout(layout_path, devices, namespace)
+
+        def status(devs: list[dict[str, Any]], now_ns: int) -> None:
+            out.status({"devices": devs}, now_ns)
+
+        names = [d["name"] for d in devices]
+        rec = Recorder(s, prefix, names, cfg, out, native=False, on_status=status, hold_ms=20.0)
+        rec.start()
+        _announce(out, f"{', '.join(names)} from {endpoint}")
+        next_status = time.monotonic()
+        try:
+            while not stop.is_set():
+                rec.drain(0.05)
+                if time.monotonic() >= next_status:
+                    next_status = time.monotonic() + 1.0
+                    try:
+                        devs = get_status(s, prefix, timeout=0.5).get("devices", [])
+                        rec.status(devs, time.time_ns())
+                    except NoDaemon:
+                        pass
+        finally:
+            rec.stop()
+
+
+def _file(out: Any, stop: threading.Event, path: Path, layout_path: str | None, loop: bool) -> None:
+    from mcap.reader import make_reader
+
+    from imud.recording.reader import McapInputError, open_recording
+
+    try:
+        rec = open_recording(path)
+    except McapInputError as e:
+        _fail(str(e), EXIT_USAGE)
+    if not rec.indexed:
+        _fail(f"{rec.warning}; then view the recovered file", EXIT_USAGE)
+    devices = [rec.info.get(d, {"name": d}) for d in sorted(rec.devices)]
+    _write_layout(layout_path, devices, "")
+    _announce(out, str(path))
+    native = set(rec.devices.values())
+    while not stop.is_set():
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            t0_log: int | None = None
+            t0 = time.monotonic()
+            for schema, channel, message in reader.iter_messages(log_time_order=True):
+                if stop.is_set():
+                    break
+                if channel.topic in native or schema is None:
+                    continue
+                t0_log = message.log_time if t0_log is None else t0_log
+                wait = t0 + (message.log_time - t0_log) / 1e9 - time.monotonic()
+                if wait > 0:
+                    stop.wait(wait)
+                out.add(channel.topic, schema.name, message.log_time, message.data)
+        if not loop:
+            click.echo("the recording ended (Ctrl-C to stop serving)", err=True)
+            stop.wait()
