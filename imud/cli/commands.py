@@ -64,6 +64,12 @@ def _view() -> click.Command:
     return view
 
 
+def _plot() -> click.Command:
+    from imud.cli.plot import plot
+
+    return plot
+
+
 def _replay() -> click.Command:
     from imud.cli.replay import replay
 
@@ -80,6 +86,7 @@ class _Commands(click.Group):
         "replay": _replay,
         "export": _export,
         "view": _view,
+        "plot": _plot,
     }
 
     def list_commands(self, ctx: click.Context) -> list[str]:
