@@ -337,3 +337,43 @@ def test_a_split_recording_is_whole_files(daemon: DaemonProc, tmp_path: Path) ->
         batches += [decode(p) for p in native(f)]
     for a, b in itertools.pairwise(batches):
         assert b.first_seq - (a.first_seq + a.count) == b.lost_before
+
+
+def test_a_full_disk_stops_the_recorder_with_a_message_and_keeps_what_was_flushed(
+    daemon: DaemonProc, tmp_path: Path
+) -> None:
+    """The file may grow to 400 kB (RLIMIT_FSIZE, as a full disk: writes beyond fail with
+    EFBIG): the recorder stops, says why and how to recover, and the file holds what it
+    flushed."""
+    import resource
+
+    def small_disk() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # the write fails instead of killing
+        resource.setrlimit(resource.RLIMIT_FSIZE, (400_000, 400_000))
+
+    path = tmp_path / "full.mcap"
+    r = subprocess.run(
+        [sys.executable, "-m", "imud", "record", "--connect", daemon.endpoint, "-o", str(path),
+         "--duration", "60"],
+        capture_output=True, text=True, timeout=120, preexec_fn=small_disk,
+    )  # fmt: skip
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert "failed" in r.stderr and "imud record --recover" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
+    assert 0 < path.stat().st_size <= 400_000
+    fixed = tmp_path / "full-recovered.mcap"
+    r = record(daemon, "--recover", str(path), "-o", str(fixed))
+    assert r.returncode == 0, r.stdout + r.stderr
+    with open(fixed, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics is not None
+    assert summary.statistics.message_count > 0
+
+
+def test_an_unwritable_directory_is_said(daemon: DaemonProc, tmp_path: Path) -> None:
+    if os.geteuid() == 0:
+        pytest.skip("root writes anywhere: an unwritable directory cannot be made here")
+    ro = tmp_path / "ro"
+    ro.mkdir(mode=0o500)
+    r = record(daemon, "-o", str(ro / "x.mcap"), "--duration", "1")
+    assert r.returncode == 2 and "cannot write in" in r.stderr, r.stderr

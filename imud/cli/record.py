@@ -15,6 +15,7 @@ are left out and counted, as are samples lost on the way.
 from __future__ import annotations
 
 import json
+import os
 import signal
 import sys
 import threading
@@ -112,6 +113,8 @@ def _record_mcap(
         _fail(f"-o {out}: directory {out.parent} does not exist", EXIT_USAGE)
     if out.exists():
         _fail(f"-o {out}: exists; choose another name (nothing recorded is overwritten)", 2)
+    if not os.access(out.parent, os.W_OK):
+        _fail(f"-o {out}: cannot write in {out.parent}: choose a directory that is yours", 2)
     with _session(endpoint) as s:
         st = _ask_status(s, endpoint, prefix, 2.0)
         for n in names:
@@ -149,6 +152,7 @@ def _record_mcap(
         end = None if duration is None else start + duration
         next_status = start + 1.0  # a flush point and a progress line, at least 1 s apart
         tty = sys.stderr.isatty()
+        failed: OSError | None = None
         try:
             while not stop.is_set() and (end is None or time.monotonic() < end):
                 rec.drain(0.2)
@@ -162,8 +166,21 @@ def _record_mcap(
                     except NoDaemon:
                         pass  # the daemon is restarting: the batches say what they say
                     _progress(rec, now - start, tty)
+        except OSError as e:  # the disk is full, or went away: what was flushed is there
+            failed = e
         finally:
-            rec.stop()
+            try:
+                rec.stop()
+            except OSError as e:  # closing needs the disk too
+                failed = failed or e
+    if failed is not None:
+        where = ", ".join(str(p) for p in rec.out.paths) or str(out)
+        _fail(
+            f"writing {where} failed after {time.monotonic() - start:.1f} s: "
+            f"{failed.strerror or failed} (a full disk?); the recording stopped, and what was "
+            f"flushed before is in the file: `imud record --recover {where}` indexes it",
+            1,
+        )
     _summary(rec, time.monotonic() - start, tty)
 
 

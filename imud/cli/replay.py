@@ -90,7 +90,11 @@ def replay(
             while not stop.is_set() and not player.subscribed():
                 stop.wait(0.05)
         while not stop.is_set():
-            done = player.run_pass(stop)
+            try:
+                done = player.run_pass(stop)
+            except McapInputError as e:  # damage past the summary: said, what was sent stands
+                click.echo(f"imud: {e}", err=True)
+                break
             passes += 1
             if not loop or done.batches == 0:
                 break

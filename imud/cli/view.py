@@ -118,8 +118,6 @@ def _live(
 
 
 def _file(out: Any, stop: threading.Event, path: Path, layout_path: str | None, loop: bool) -> None:
-    from mcap.reader import make_reader
-
     from imud.recording.reader import McapInputError, open_recording
 
     try:
@@ -133,20 +131,30 @@ def _file(out: Any, stop: threading.Event, path: Path, layout_path: str | None, 
     _announce(out, str(path))
     native = set(rec.devices.values())
     while not stop.is_set():
-        with open(path, "rb") as f:
-            reader = make_reader(f)
-            t0_log: int | None = None
-            t0 = time.monotonic()
-            for schema, channel, message in reader.iter_messages(log_time_order=True):
-                if stop.is_set():
-                    break
-                if channel.topic in native or schema is None:
-                    continue
-                t0_log = message.log_time if t0_log is None else t0_log
-                wait = t0 + (message.log_time - t0_log) / 1e9 - time.monotonic()
-                if wait > 0:
-                    stop.wait(wait)
-                out.add(channel.topic, schema.name, message.log_time, message.data)
+        try:
+            _play(out, stop, path, native)
+        except Exception as e:
+            _fail(f"{path}: damaged: {e}; `imud record --recover {path}` saves the rest", 1)
         if not loop:
             click.echo("the recording ended (Ctrl-C to stop serving)", err=True)
             stop.wait()
+
+
+def _play(out: Any, stop: threading.Event, path: Path, native: set[str]) -> None:
+    """The file's messages (less the native batches) to `out` at their pace, once."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        t0_log: int | None = None
+        t0 = time.monotonic()
+        for schema, channel, message in reader.iter_messages(log_time_order=True):
+            if stop.is_set():
+                break
+            if channel.topic in native or schema is None:
+                continue
+            t0_log = message.log_time if t0_log is None else t0_log
+            wait = t0 + (message.log_time - t0_log) / 1e9 - time.monotonic()
+            if wait > 0:
+                stop.wait(wait)
+            out.add(channel.topic, schema.name, message.log_time, message.data)

@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 
 from imud.recording.recover import has_footer
@@ -60,7 +59,8 @@ class Recording:
                     if channel is None or channel.topic not in topics:
                         continue
                     yield topics[channel.topic], message.log_time, batch_wire(message.data)
-            except (McapError, EOFError) as e:  # the cut-off end of a file without a summary
+            except Exception as e:
+                # own errors, struct's, zstd's; a file without a summary ends in one
                 if self.indexed:
                     raise McapInputError(f"{self.path}: damaged: {e}") from None
 
@@ -99,7 +99,7 @@ def open_recording(path: Path, prefix: str | None = None) -> Recording:
                     "indexed copy"
                 )
                 channels = _stream_channels(rec, f)
-        except (McapError, EOFError, ValueError) as e:
+        except Exception as e:
             raise McapInputError(f"{path}: not a readable MCAP file ({e})") from None
     for topic, schema in channels:
         parts = topic.strip("/").split("/")
@@ -140,6 +140,6 @@ def _stream_channels(rec: Recording, f: Any) -> list[tuple[str, str]]:
                 _take_metadata(rec, r.name, r.metadata)
             elif isinstance(r, Attachment):
                 rec.attachments[r.name] = r.data
-    except (McapError, EOFError):
-        pass  # the cut-off end
+    except Exception:
+        pass
     return out

@@ -185,17 +185,22 @@ class Recorder:
             self.on_status(devices, now_ns)
 
     def stop(self) -> None:
-        """Write what is queued, stop receiving, write what the ROS 2 side holds, close the file."""
-        self.drain(0.0)
-        for _, s in self._subs:
-            s.undeclare()
-        self._subs = []
-        if self.ros2 is not None:
-            self.ros2.flush()
-            self.ros2.close()
-        self.out.close()
-        if self._tmp is not None:
-            self._tmp.cleanup()
+        """Write what is queued, stop receiving, write what the ROS 2 side holds, close the file.
+        A write that fails (a full disk) raises OSError once all is let go of."""
+        try:
+            self.drain(0.0)
+        finally:
+            for _, s in self._subs:
+                s.undeclare()
+            self._subs = []
+            try:
+                if self.ros2 is not None:
+                    self.ros2.flush()
+                    self.ros2.close()
+                self.out.close()
+            finally:
+                if self._tmp is not None:
+                    self._tmp.cleanup()
 
 
 def attachments(view: dict[str, Any] | None) -> list[Attachment]:

@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mcap.exceptions import McapError
 from mcap.records import (
     Attachment,
     Channel,
@@ -75,7 +74,8 @@ def recover(src: Path, dst: Path) -> Recovered:
                     out.complete = True
                     break
                 records.append(r)
-        except (McapError, EOFError, ValueError, OSError) as e:  # the cut-off end
+        except Exception as e:
+            # own errors, struct's, zstd's
             out.stopped_at = f"{type(e).__name__}: {e}"
     profile, library = "ros2", LIBRARY
     for r in records:
