@@ -8,6 +8,7 @@ import json
 import signal
 import threading
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -24,6 +25,11 @@ from imud.recording.reader import Recording
 @click.option("--loop", is_flag=True, help="play it again and again (stamps and seqs go on)")
 @click.option("--device", "devices", multiple=True, help="only these devices (repeat it)")
 @click.option("--restamp", is_flag=True, help="move the stamps so the first sample is now")
+@click.option(
+    "--ros2/--no-ros2",
+    default=None,
+    help="the ROS 2 output as the recorded config has it (default: on if its [ros2] was)",
+)
 @click.option(
     "--wait",
     is_flag=True,
@@ -42,6 +48,7 @@ def replay(
     loop: bool,
     devices: tuple[str, ...],
     restamp: bool,
+    ros2: bool | None,
     wait: bool,
     listen: str,
     prefix: str,
@@ -79,8 +86,13 @@ def replay(
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    player = Replay(rec, session, prefix, names, rate, restamp or loop)
+    out, daemon_cfg = _ros2_output(rec, session, ros2)
+    player = Replay(
+        rec, session, prefix, names, rate, restamp or loop,
+        on_batch=None if out is None else out.batch,
+    )  # fmt: skip
     player.start()
+    ticker = None if out is None else _ticker(out, player, stop)
     click.echo(f"replaying {', '.join(names)} from {path} on {listen} at {rate:g}x", err=True)
     first = first_samples(rec, names) if loop else {}
     passes = 0
@@ -100,10 +112,52 @@ def replay(
                 break
             player.next_loop(first, _period_ns(rec, names))
     finally:
+        stop.set()
+        if ticker is not None:
+            ticker.join()
+        if out is not None:
+            out.close()
+        if daemon_cfg is not None:
+            daemon_cfg.close()
         player.stop()
         session.close()  # type: ignore[no-untyped-call]
     sent = ", ".join(f"{d} {n:,}" for d, n in player.sent.items())
     click.echo(f"replayed {passes} pass(es): {sent} samples", err=True)
+
+
+def _ros2_output(rec: Recording, session: Any, wanted: bool | None) -> tuple[Any, Any]:
+    """The ROS 2 output of the recorded config, on the replay's session (None when it is off)."""
+    from imud.recording.daemoncfg import DaemonConfig
+
+    found = rec.daemon_config()
+    if found is None:
+        if wanted:
+            _fail(f"{rec.path} kept no config: --ros2 has nothing to build from", EXIT_USAGE)
+        return None, None
+    cfg = DaemonConfig(*found)
+    if cfg.config is None or not (wanted or (wanted is None and cfg.config.ros2.enabled)):
+        if wanted and cfg.error:
+            _fail(f"{rec.path}: {cfg.error}", EXIT_USAGE)
+        cfg.close()
+        return None, None
+    from imud.ros2.output import Ros2Output
+
+    out = Ros2Output(cfg.config, session)
+    topics = ", ".join(out.topics())
+    click.echo(f"ROS 2 output ({', '.join(cfg.config.ros2.profiles)}): {topics}", err=True)
+    return out, cfg
+
+
+def _ticker(out: Any, player: Any, stop: threading.Event) -> threading.Thread:
+    """/diagnostics once a second from the replay's status, as the daemon's output has it."""
+
+    def run() -> None:
+        while not stop.wait(1.0):
+            out.tick(player.status()["devices"])
+
+    t = threading.Thread(target=run, name="ros2-tick", daemon=True)
+    t.start()
+    return t
 
 
 def _period_ns(rec: Recording, names: list[str]) -> int:

@@ -45,6 +45,25 @@ class Recording:
     attachments: dict[str, bytes] = field(default_factory=dict)
     warning: str | None = None
 
+    def daemon_config(self) -> tuple[dict[str, Any], dict[str, str]] | None:
+        """The daemon's config file, as recorded (a table), and each device's calibration
+        file's text; None when the recording kept no config."""
+        import tomllib
+
+        configs = [n for n in self.attachments if ": " not in n and n.endswith(".toml")]
+        if not configs:
+            return None
+        try:
+            raw = tomllib.loads(self.attachments[configs[0]].decode("utf-8", "replace"))
+        except tomllib.TOMLDecodeError:
+            return None
+        cal = {
+            n.split(": ", 1)[0]: data.decode("utf-8", "replace")
+            for n, data in self.attachments.items()
+            if ": " in n
+        }
+        return raw, cal
+
     def batches(self, devices: list[str] | None = None) -> Iterator[tuple[str, int, bytes]]:
         """(device, log time ns, wire bytes) of the named devices (all by default), in log
         time order (a stream's own order for a file without its summary)."""

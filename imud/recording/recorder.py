@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import logging
 import struct
-import tempfile
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -29,7 +28,7 @@ from typing import Any, Protocol
 import zenoh
 
 from imud.client import data_key
-from imud.config import parse_config
+from imud.recording.daemoncfg import DaemonConfig
 from imud.recording.mcapfile import Attachment
 from imud.recording.schemas import BATCH, batch_cdr
 from imud.ros2.messages import Ros2Messages, Topic
@@ -94,7 +93,7 @@ class Recorder:
         self.hold_ms = hold_ms
         self.counts = {d: Counts() for d in devices}
         self._subs: list[tuple[str, Any]] = []
-        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        self._config: DaemonConfig | None = None
         self.ros2: Ros2Messages | None = None
         self.ros2_error: str | None = None
         if view is not None:
@@ -102,28 +101,19 @@ class Recorder:
 
     # --- what the daemon runs ---------------------------------------------------------------
     def _ros2_from(self, view: dict[str, Any]) -> None:
-        """The daemon's ROS 2 messages, built here from its config. Its calibration files are
-        read from the copies the daemon sent (the covariances use their measured noise)."""
-        raw = dict(view["config"])
-        cal = view.get("calibration") or {}
-        self._tmp = tempfile.TemporaryDirectory(prefix="imud-record-")
-        devices = []
-        for d in raw.get("device", []):
-            d = dict(d)
-            text = (cal.get(d.get("name")) or {}).get("text")
-            if text is not None:
-                copy = Path(self._tmp.name) / f"{d['name']}.cal.toml"
-                copy.write_text(text)
-                d["calibration"] = str(copy)
-            devices.append(d)
-        raw["device"] = devices
-        try:
-            cfg = parse_config(raw)
-        except Exception as e:  # a daemon newer than this recorder: the native data still go in
-            self.ros2_error = f"the daemon's config does not load here ({e}): no ROS 2 messages"
+        """The daemon's ROS 2 messages, built here from its config, its calibration files read
+        from the copies it sent (the covariances use their measured noise)."""
+        cal = {
+            name: c["text"] for name, c in (view.get("calibration") or {}).items() if c.get("text")
+        }
+        self._config = DaemonConfig(view["config"], cal)
+        if self._config.config is None:  # the native data still go in
+            self.ros2_error = f"{self._config.error}: no ROS 2 messages"
             log.error("%s", self.ros2_error)
             return
-        self.ros2 = Ros2Messages(cfg, self._ros, diagnostics=True, hold_ms=self.hold_ms)
+        self.ros2 = Ros2Messages(
+            self._config.config, self._ros, diagnostics=True, hold_ms=self.hold_ms
+        )
 
     # --- receiving ----------------------------------------------------------------------------
     def start(self) -> None:
@@ -199,8 +189,8 @@ class Recorder:
                     self.ros2.close()
                 self.out.close()
             finally:
-                if self._tmp is not None:
-                    self._tmp.cleanup()
+                if self._config is not None:
+                    self._config.close()
 
 
 def attachments(view: dict[str, Any] | None) -> list[Attachment]:

@@ -49,7 +49,9 @@ class Replay:
         restamp: bool = False,
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
+        on_batch: Callable[[str, bytes], None] | None = None,
     ) -> None:
+        """on_batch: also given every batch published (the ROS 2 output of a replay)."""
         self.rec = rec
         self.session = session
         self.prefix = prefix
@@ -57,6 +59,7 @@ class Replay:
         self.rate = rate
         self.restamp = restamp
         self.clock, self.sleep = clock, sleep
+        self.on_batch = on_batch
         self.sent = {d: 0 for d in devices}  # samples, over every pass
         self._pubs: dict[str, Any] = {}
         self._raw: dict[str, Any] = {}
@@ -119,6 +122,10 @@ class Replay:
         base = DeviceStatus(name, "?", "(recording)", 0.0, channels, False).to_json()
         return {**base, **self.rec.info.get(name, {})}
 
+    def status(self) -> dict[str, Any]:
+        """What the daemon status queryable answers."""
+        return self._status()
+
     def _status(self) -> dict[str, Any]:
         return {
             "version": f"{__version__} (replaying {self.rec.path.name})",
@@ -148,6 +155,8 @@ class Replay:
                 self.sleep(wait)
             payload = self._shifted(device, wire)
             self._pubs[device].put(payload)
+            if self.on_batch is not None:
+                self.on_batch(device, payload)
             if not (decode(payload).flags & FLAG_CALIBRATED):
                 self._raw[device].put(payload)
             b = decode(payload)
