@@ -289,3 +289,27 @@ def test_a_replay_has_the_recorded_configs_ros2_output(tmp_path: Path) -> None:
     assert "ROS 2 output (bridge)" in err, err
     assert len(got) > 300  # 200 Hz for 3 s, less what the recording held back at its end
     assert all(p in recorded for p in got)
+
+
+def test_apply_corrects_a_device_of_the_recording_as_of_its_csv(
+    recording: tuple[DaemonProc, Path], tmp_path: Path
+) -> None:
+    """`calibrate apply --from FILE.mcap --device` writes what the same calibration applied to
+    the device's exported CSV writes: the recording read the same way."""
+    _, orig = recording
+    cal = tmp_path / "still0.cal.toml"
+    r = imud("calibrate", "gyro", "--from", str(orig), "--device", "still0", "--out", str(cal))
+    assert r.returncode == 0, r.stdout + r.stderr
+    csv = tmp_path / "still0.csv"
+    assert imud("export", str(orig), "--csv", str(csv), "--device", "still0").returncode == 0
+    outs = []
+    for src in (("--from", str(orig), "--device", "still0"), ("--from", str(csv))):
+        out = tmp_path / f"corrected{len(outs)}.csv"
+        r = imud("calibrate", "apply", "--calibration", str(cal), *src, "--out", str(out))
+        assert r.returncode == 0, r.stdout + r.stderr
+        rows = [x for x in out.read_text().splitlines() if not x.startswith("#")][1:]
+        outs.append(np.loadtxt(rows, delimiter=","))
+    assert outs[0].shape == outs[1].shape
+    # the CSV route reads each float32 back as its 9 digits: equal to that
+    np.testing.assert_allclose(outs[0][:, 1:7], outs[1][:, 1:7], rtol=0, atol=1e-6)
+    assert abs(outs[0][:, 4:7].mean(axis=0)).max() < 1e-6  # the still gyro's bias taken out

@@ -370,47 +370,10 @@ class Job:
 
     def _mcap(self, path: Path) -> Any:
         """A device of an MCAP recording (imud record -o), its samples as recorded."""
-        from imud.calib.csvio import SATURATED_MASK
-        from imud.calib.recording import Recording
-        from imud.recording.export import device_data
-        from imud.recording.reader import McapInputError, open_recording
-
-        try:
-            rec = open_recording(path)
-            if rec.warning:
-                click.echo(f"imud: {rec.warning}", err=True)
-            name = self.o.get("device")
-            if name is None:
-                if len(rec.devices) != 1:
-                    _fail(
-                        f"{path} holds {', '.join(sorted(rec.devices))}: give --device NAME",
-                        EXIT_USAGE,
-                        self.as_json,
-                    )
-                name = next(iter(rec.devices))
-            d = device_data(rec, name)
-        except McapInputError as e:
-            _fail(str(e), EXIT_USAGE, self.as_json)
-        if d.calibrated:
-            _fail(
-                f"{path}: {name}'s samples were corrected by a calibration when recorded; "
-                "calibrate from uncorrected ones (remove the device's calibration, record again)",
-                EXIT_USAGE,
-                self.as_json,
-            )
-        self.chip = self.chip or rec.info.get(name, {}).get("chip")
+        rec, chip, name = read_mcap_device(path, self.o.get("device"), self.as_json)
+        self.chip = self.chip or chip
         self.device_name = name
-        n = d.t_ns.size
-        absent = np.full((n, 3), np.nan)
-        return Recording(
-            d.t_ns,
-            absent if d.accel is None else d.accel,
-            absent.copy() if d.gyro is None else d.gyro,
-            d.temp[:, 0] if d.temp is not None and d.temp.ndim == 2 else d.temp,
-            d.mag,
-            (d.flags & np.uint32(SATURATED_MASK)) != 0,
-            f"{path} ({name})",
-        )
+        return rec
 
     def _counts(self, sensor: str) -> tuple[float, float] | None:
         """--accel-counts / --gyro-counts, parsed (a bad one is a usage error, said)."""
@@ -923,11 +886,13 @@ def mag(field_ut: float | None, strict: bool, tolerance_ut: float | None, **opts
 @click.option("--calibration", "cal_path", required=True, type=click.Path(dir_okay=False))
 @click.option("--from", "from_csv", required=True, type=click.Path(dir_okay=False, exists=True))
 @click.option("--out", required=True, type=click.Path(dir_okay=False))
+@click.option("--device", help="--from FILE.mcap: which of its devices")
 @_units
 def apply_cmd(
     cal_path: str,
     from_csv: str,
     out: str,
+    device: str | None,
     accel_units: str,
     gyro_units: str,
     mag_units: str,
@@ -943,14 +908,17 @@ def apply_cmd(
 
     try:
         cal = load_calibration(Path(cal_path))
-        rec = read_csv(
-            Path(from_csv),
-            accel_units,  # type: ignore[arg-type]
-            gyro_units,  # type: ignore[arg-type]
-            mag_units,  # type: ignore[arg-type]
-            time_units=time_units,  # type: ignore[arg-type]
-            rate_hz=rate_hz,
-        )
+        if _is_mcap(from_csv):  # a recording: the device's samples, as the offline fits read it
+            rec, _, _ = read_mcap_device(Path(from_csv), device, False)
+        else:
+            rec = read_csv(
+                Path(from_csv),
+                accel_units,  # type: ignore[arg-type]
+                gyro_units,  # type: ignore[arg-type]
+                mag_units,  # type: ignore[arg-type]
+                time_units=time_units,  # type: ignore[arg-type]
+                rate_hz=rate_hz,
+            )
     except (CalibrationError, CsvError) as e:
         _fail(str(e), EXIT_USAGE)
     si = {Channel.ACCEL: rec.accel, Channel.GYRO: rec.gyro}
@@ -963,7 +931,10 @@ def apply_cmd(
     flags = np.zeros(rec.n, dtype=np.uint32)
     if clamped is not None:
         flags[clamped] |= np.uint32(SampleFlag.TEMPERATURE_OUTSIDE_CALIBRATION)
-    comments = {**read_comments(Path(from_csv)), "samples": f"corrected with {cal_path}"}
+    comments = {
+        **({} if _is_mcap(from_csv) else read_comments(Path(from_csv))),
+        "samples": f"corrected with {cal_path}",
+    }
     comments.pop("format", None)
     with CsvWriter(
         Path(out),
@@ -991,3 +962,47 @@ def _is_mcap(path: str) -> bool:
     from imud.recording.reader import is_mcap
 
     return is_mcap(Path(path))
+
+
+def read_mcap_device(path: Path, name: str | None, as_json: bool) -> tuple[Any, str | None, str]:
+    """(the calibration Recording, the chip, the device) of one device of an MCAP recording; a
+    file that is not one, a device not in it, or corrected samples end in a usage error."""
+    from imud.calib.csvio import SATURATED_MASK
+    from imud.calib.recording import Recording
+    from imud.recording.export import device_data
+    from imud.recording.reader import McapInputError, open_recording
+
+    try:
+        rec = open_recording(path)
+        if rec.warning:
+            click.echo(f"imud: {rec.warning}", err=True)
+        if name is None:
+            if len(rec.devices) != 1:
+                _fail(
+                    f"{path} holds {', '.join(sorted(rec.devices))}: give --device NAME",
+                    EXIT_USAGE,
+                    as_json,
+                )
+            name = next(iter(rec.devices))
+        d = device_data(rec, name)
+    except McapInputError as e:
+        _fail(str(e), EXIT_USAGE, as_json)
+    if d.calibrated:
+        _fail(
+            f"{path}: {name}'s samples were corrected by a calibration when recorded; "
+            "calibrate from uncorrected ones (remove the device's calibration, record again)",
+            EXIT_USAGE,
+            as_json,
+        )
+    n = d.t_ns.size
+    absent = np.full((n, 3), np.nan)
+    samples = Recording(
+        d.t_ns,
+        absent if d.accel is None else d.accel,
+        absent.copy() if d.gyro is None else d.gyro,
+        d.temp[:, 0] if d.temp is not None and d.temp.ndim == 2 else d.temp,
+        d.mag,
+        (d.flags & np.uint32(SATURATED_MASK)) != 0,
+        f"{path} ({name})",
+    )
+    return samples, rec.info.get(name, {}).get("chip"), name
