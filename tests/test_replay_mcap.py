@@ -6,6 +6,7 @@ Expected values come from the test's own decoding of the recorded batches."""
 
 from __future__ import annotations
 
+import itertools
 import subprocess
 import sys
 import time
@@ -313,3 +314,45 @@ def test_apply_corrects_a_device_of_the_recording_as_of_its_csv(
     # the CSV route reads each float32 back as its 9 digits: equal to that
     np.testing.assert_allclose(outs[0][:, 1:7], outs[1][:, 1:7], rtol=0, atol=1e-6)
     assert abs(outs[0][:, 4:7].mean(axis=0)).max() < 1e-6  # the still gyro's bias taken out
+
+
+def test_a_loop_goes_on_as_one_stream_stamped_now(
+    recording: tuple[DaemonProc, Path], tmp_path: Path
+) -> None:
+    """--loop at 4x: the second pass's sequence numbers and stamps continue the first's (one
+    stream to a subscriber, no seq gap between passes), stamped from now (--restamp is implied)."""
+    import zenoh
+
+    import imud.client as ic
+
+    _, orig = recording
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    player = subprocess.Popen(
+        [sys.executable, "-m", "imud", "replay", str(orig), "--listen", endpoint, "--wait",
+         "--loop", "--rate", "4", "--device", "still0"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        time.sleep(1.0)
+        started = time.time_ns()
+        file_samples = sum(decode(p).count for p in natives(orig)["still0"])
+        got = []
+        with ic.open_session(endpoint) as s:
+            sub = s.declare_subscriber(ic.data_key("still0"), zenoh.handlers.RingChannel(100000))
+            end = time.monotonic() + 60  # a bound for a broken replay, not a pace
+            while sum(b.count for b in got) <= file_samples:  # into the second pass
+                assert time.monotonic() < end, len(got)
+                x = sub.try_recv()
+                if x is None:
+                    time.sleep(0.02)
+                else:
+                    got.append(decode(x.payload.to_bytes()))
+            sub.undeclare()
+    finally:
+        player.terminate()
+        player.wait(20)
+    for a, b in itertools.pairwise(got):
+        # no gap but what the recording announced, not even between passes
+        assert b.first_seq == a.first_seq + a.count + b.lost_before
+        assert b.t_ns[0] > a.t_ns[-1]
+    assert abs(int(got[0].t_ns[0]) - started) < 5 * 10**9  # stamped about now, not as recorded
