@@ -86,7 +86,8 @@ def test_replay_then_record_gives_the_same_native_bytes(
                 break
             time.sleep(0.1)
         assert r.returncode == 0, r.stderr
-        assert '"state": "replaying"' in r.stdout and '"chip": "icm42688p"' in r.stdout
+        assert '"replaying": "' in r.stdout and '"chip": "icm42688p"' in r.stdout
+        assert '"state": "running"' in r.stdout  # as a daemon's, so every client takes it
         r = imud("record", "--connect", endpoint, "-o", str(again), "--duration", "4")
         assert r.returncode == 0, r.stdout + r.stderr
         _, err = player.communicate(timeout=60)
@@ -97,6 +98,14 @@ def test_replay_then_record_gives_the_same_native_bytes(
     assert set(a) == set(b) == {"still0", "fast0"}
     for device in a:
         assert b[device] == a[device], device  # batch for batch, byte for byte
+    # the replay served the recorded config: the second file has the ROS 2 messages and the
+    # config too, the same messages as the first
+    with open(orig, "rb") as f1, open(again, "rb") as f2:
+        r1, r2 = make_reader(f1), make_reader(f2)
+        assert "imud.toml" in [x.name for x in r2.iter_attachments()]
+        m1 = [m.data for _, c, m in r1.iter_messages() if c and c.topic == "/still0/imu/data_raw"]
+        m2 = [m.data for _, c, m in r2.iter_messages() if c and c.topic == "/still0/imu/data_raw"]
+    assert m2 and set(m2) <= set(m1)
 
 
 def test_export_writes_the_recorded_samples(
@@ -356,3 +365,34 @@ def test_a_loop_goes_on_as_one_stream_stamped_now(
         assert b.first_seq == a.first_seq + a.count + b.lost_before
         assert b.t_ns[0] > a.t_ns[-1]
     assert abs(int(got[0].t_ns[0]) - started) < 5 * 10**9  # stamped about now, not as recorded
+
+
+def test_live_calibration_runs_against_a_replay(
+    recording: tuple[DaemonProc, Path], tmp_path: Path
+) -> None:
+    """`imud calibrate gyro --device` reads a replay's uncorrected stream as a daemon's: the
+    bias of the looped still recording is its recorded samples' mean, near enough."""
+    import json
+
+    _, orig = recording
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    player = subprocess.Popen(
+        [sys.executable, "-m", "imud", "replay", str(orig), "--listen", endpoint, "--loop",
+         "--device", "still0"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        for _ in range(100):
+            if imud("status", "--connect", endpoint, timeout=30).returncode == 0:
+                break
+            time.sleep(0.1)
+        out_file = str(tmp_path / "c.toml")
+        r = imud("calibrate", "gyro", "--device", "still0", "--connect", endpoint,
+                 "--out", out_file, "--duration", "4", "--dry-run", "--json")  # fmt: skip
+    finally:
+        player.terminate()
+        player.wait(20)
+    assert r.returncode == 0, r.stdout + r.stderr
+    out = json.loads(r.stdout)
+    gyro = np.concatenate([decode(p).gyro for p in natives(orig)["still0"]]).astype(np.float64)
+    np.testing.assert_allclose(out["bias"], gyro.mean(axis=0), atol=5e-4)

@@ -91,6 +91,7 @@ def replay(
         rec, session, prefix, names, rate, restamp or loop,
         on_batch=None if out is None else out.batch,
     )  # fmt: skip
+    player.config_view = _config_view(rec, daemon_cfg)
     player.start()
     ticker = None if out is None else _ticker(out, player, stop)
     click.echo(f"replaying {', '.join(names)} from {path} on {listen} at {rate:g}x", err=True)
@@ -125,8 +126,24 @@ def replay(
     click.echo(f"replayed {passes} pass(es): {sent} samples", err=True)
 
 
+def _config_view(rec: Recording, cfg: Any) -> dict[str, Any] | None:
+    """What the daemon's config queryable answered, from the recording (None: none kept)."""
+    found = rec.daemon_config()
+    if cfg is None or cfg.config is None or found is None:
+        return None
+    _, calibration = found
+    name = next((n for n in rec.attachments if ": " not in n and n.endswith(".toml")), None)
+    return {
+        "path": name,
+        "text": None if name is None else rec.attachments[name].decode("utf-8", "replace"),
+        "config": cfg.config.model_dump(mode="json"),
+        "calibration": {d: {"path": f"{d}.cal.toml", "text": t} for d, t in calibration.items()},
+    }
+
+
 def _ros2_output(rec: Recording, session: Any, wanted: bool | None) -> tuple[Any, Any]:
-    """The ROS 2 output of the recorded config, on the replay's session (None when it is off)."""
+    """The recorded config (a DaemonConfig) and its ROS 2 output on the replay's session (None
+    when it is off)."""
     from imud.recording.daemoncfg import DaemonConfig
 
     found = rec.daemon_config()
@@ -138,8 +155,7 @@ def _ros2_output(rec: Recording, session: Any, wanted: bool | None) -> tuple[Any
     if cfg.config is None or not (wanted or (wanted is None and cfg.config.ros2.enabled)):
         if wanted and cfg.error:
             _fail(f"{rec.path}: {cfg.error}", EXIT_USAGE)
-        cfg.close()
-        return None, None
+        return None, cfg
     from imud.ros2.output import Ros2Output
 
     out = Ros2Output(cfg.config, session)

@@ -7,13 +7,16 @@ Each device's native batches go out on `<prefix>/<device>/imu` at the pace their
 `restamp`, which moves every stamp by one offset so the first sample is now. A loop (`loop`)
 restamps: each pass continues the last one's stamps and sequence numbers, so a subscriber sees
 one stream. `<prefix>/daemon/status` and `<prefix>/<device>/status` answer with the devices as
-the daemon described them when the recording began (state "replaying"), so clients find them.
-Batches a recording holds uncorrected (no calibration was applied) go out on `/raw` as well,
-for `imud calibrate --device`.
+the daemon described them when the recording began (state running, the file named, the rate
+and gaps as replayed), so clients find them; `<prefix>/daemon/config` with the recorded config
+and calibration files, so a recorder of the replay keeps them and its ROS 2 messages. Batches a
+recording holds uncorrected (no calibration was applied) go out on `/raw` as well, for `imud
+calibrate --device`.
 """
 
 from __future__ import annotations
 
+import collections
 import json
 import threading
 import time
@@ -28,6 +31,8 @@ from imud import __version__
 from imud.client import data_key
 from imud.recording.reader import Recording
 from imud.wire import FLAG_CALIBRATED, decode, encode
+
+RATE_WINDOW_S = 5.0  # the status's rate: samples sent over the last this many seconds
 
 
 @dataclass
@@ -69,6 +74,11 @@ class Replay:
         self._last = {d: (0, 0) for d in devices}  # last (seq end, stamp) sent, for loops
         self._base: dict[str, dict[str, Any]] = {}  # each device's status, less the live part
         self._started = clock()
+        self.lost = {d: 0 for d in devices}  # the gaps replayed (lost_before), samples
+        self._recent: dict[str, collections.deque[tuple[float, int]]] = {
+            d: collections.deque() for d in devices
+        }
+        self.config_view: dict[str, Any] | None = None  # what <prefix>/daemon/config answers
 
     def start(self) -> None:
         self._started = self.clock()
@@ -85,6 +95,13 @@ class Replay:
                 f"{self.prefix}/daemon/status", self._answer(self._status)
             )
         )
+        if self.config_view is not None:  # a recorder of this replay keeps it, as of a daemon
+            view = self.config_view
+            self._queryables.append(
+                self.session.declare_queryable(
+                    f"{self.prefix}/daemon/config", self._answer(lambda: view)
+                )
+            )
 
     def subscribed(self) -> bool:
         """Whether every device's stream has a subscriber (a recorder, an echo) by now."""
@@ -106,11 +123,21 @@ class Replay:
         info = self._base.get(name)
         if info is None:
             info = self._base[name] = self._described(name)
+        # what a daemon's status says of a running device, counted from what this replay sent:
+        # its rate over the last seconds (at --rate, not as recorded), the gaps it replayed
+        window = self._recent[name]
+        now = self.clock()
+        while window and now - window[0][0] > RATE_WINDOW_S:
+            window.popleft()
+        span = now - window[0][0] if window else 0.0
+        rate = sum(n for _, n in window) / span if span > 0.5 else 0.0
         return {
             **info,
-            "state": "replaying",
+            "state": "running",
+            "replaying": str(self.rec.path),
             "samples": self.sent[name],
-            "source": str(self.rec.path),
+            "lost_samples": self.lost[name],
+            "measured_rate_hz": round(rate, 3),
         }
 
     def _described(self, name: str) -> dict[str, Any]:
@@ -161,6 +188,9 @@ class Replay:
                 self._raw[device].put(payload)
             b = decode(payload)
             self._last[device] = (b.first_seq + b.count, int(b.t_ns[-1]) if b.count else 0)
+            if self.sent[device]:
+                self.lost[device] += b.lost_before
+            self._recent[device].append((self.clock(), b.count))
             out.batches += 1
             out.samples += b.count
             self.sent[device] += b.count
