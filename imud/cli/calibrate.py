@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import click
 import numpy as np
 
-from imud.cli.common import EXIT_USAGE, _connect, _fail, _prefix
+from imud.cli.common import EXIT_USAGE, _connect, _fail, _new_file, _prefix
 
 if TYPE_CHECKING:
     from imud.calib.file import CalibrationFile
@@ -906,6 +906,7 @@ def apply_cmd(
     from imud.channels import Channel, SampleFlag
     from imud.pipeline import correct
 
+    _new_file(Path(out), "--out")
     try:
         cal = load_calibration(Path(cal_path))
         if _is_mcap(from_csv):  # a recording: the device's samples, as the offline fits read it

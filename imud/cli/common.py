@@ -6,6 +6,7 @@ from __future__ import annotations
 import difflib
 import json
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
 import click
@@ -38,6 +39,19 @@ _connect = click.option(
     help="Zenoh endpoint of the daemon, PROTOCOL/HOST:PORT",
 )
 _prefix = click.option("--prefix", default="imud", show_default=True, help="key prefix")
+
+
+def _new_file(path: Path, option: str, as_json: bool = False) -> None:
+    """An output file the command will create: its directory there, no file of that name (what
+    is already on disk, a recording most of all, is never overwritten)."""
+    if not path.parent.is_dir():
+        _fail(f"{option} {path}: directory {path.parent} does not exist", EXIT_USAGE, as_json)
+    if path.exists():
+        _fail(
+            f"{option} {path}: exists; choose another name (nothing is overwritten)",
+            EXIT_USAGE,
+            as_json,
+        )
 
 
 def _fail(message: str, code: int, as_json: bool = False) -> NoReturn:

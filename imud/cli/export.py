@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from imud.cli.common import EXIT_USAGE, _fail
+from imud.cli.common import EXIT_USAGE, _fail, _new_file
 
 
 @click.command()
@@ -22,8 +22,7 @@ def export(path: str, csv_path: str, device: str | None) -> None:
     from imud.recording.reader import McapInputError, open_recording
 
     out = Path(csv_path)
-    if not out.parent.is_dir():
-        _fail(f"--csv {out}: directory {out.parent} does not exist", EXIT_USAGE)
+    _new_file(out, "--csv")
     try:
         rec = open_recording(Path(path))
         if rec.warning:

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import click
 import numpy as np
 
-from imud.cli.common import EXIT_USAGE, _fail
+from imud.cli.common import EXIT_USAGE, _fail, _new_file
 
 if TYPE_CHECKING:
     from imud.recording.plot import Series
@@ -29,11 +29,14 @@ def plot(path: str, out: str | None, devices: tuple[str, ...]) -> None:
     target = Path(out) if out else src.with_suffix(".png")
     if target.suffix.lower() != ".png":
         _fail(f"-o {target}: name a .png file", EXIT_USAGE)
-    if not target.parent.is_dir():
-        _fail(f"-o {target}: directory {target.parent} does not exist", EXIT_USAGE)
     series = _from_mcap(src, list(devices)) if _is_mcap(src) else [_from_csv(src)]
-    for s in series:
-        where = target if len(series) == 1 else target.with_name(f"{target.stem}_{s.name}.png")
+    wheres = [
+        target if len(series) == 1 else target.with_name(f"{target.stem}_{s.name}.png")
+        for s in series
+    ]
+    for where in wheres:
+        _new_file(where, "-o")
+    for s, where in zip(series, wheres, strict=True):
         draw.draw(s, where)
         click.echo(f"{where}: {s.name}, {s.t_ns.size:,} samples, {s.lost:,} lost")
 

@@ -26,7 +26,16 @@ from typing import Any
 import click
 import numpy as np
 
-from imud.cli.common import EXIT_USAGE, _ask_status, _connect, _device, _fail, _prefix, _session
+from imud.cli.common import (
+    EXIT_USAGE,
+    _ask_status,
+    _connect,
+    _device,
+    _fail,
+    _new_file,
+    _prefix,
+    _session,
+)
 
 
 @click.command()
@@ -244,8 +253,7 @@ def _record_csv(
     from imud.calib.file import now_iso
     from imud.channels import INVALID_MASK, Channel
 
-    if not out.parent.is_dir():
-        _fail(f"--csv {out}: directory {out.parent} does not exist", EXIT_USAGE)
+    _new_file(out, "--csv")
     with _session(endpoint) as s:
         dev = _device(_ask_status(s, endpoint, prefix, 2.0), device, endpoint, False, False)
         chans = set(dev.get("channels", []))
