@@ -88,7 +88,11 @@ def record(
         _fail("give -o FILE.mcap (every device, or those named) or --csv FILE (one device)", 2)
     if csv_path is not None:
         if len(devices) != 1 or duration is None:
-            _fail("--csv records one device for a --duration: imud record DEVICE --csv F", 2)
+            _fail(
+                "--csv records one device for a --duration: "
+                "imud record DEVICE --csv FILE --duration S",
+                2,
+            )
         if split_size is not None or split_duration is not None:
             _fail("--split-size/--split-duration split MCAP files (-o), not a CSV", 2)
         _record_csv(devices[0], Path(csv_path), raw, duration, endpoint, prefix)
@@ -122,6 +126,13 @@ def _record_mcap(
         _fail(f"-o {out}: directory {out.parent} does not exist", EXIT_USAGE)
     if out.exists():
         _fail(f"-o {out}: exists; choose another name (nothing recorded is overwritten)", 2)
+    if split_mb is not None or split_s is not None:
+        taken = sorted(out.parent.glob(f"{out.stem}_[0-9][0-9][0-9]{out.suffix}"))
+        if taken:
+            parts = f"{out.stem}_000{out.suffix}, {out.stem}_001{out.suffix}, ..."
+            names = ", ".join(p.name for p in taken[:3])
+            _fail(f"-o {out}: split, its parts are {parts}, and {names} exist already; "
+                  "choose another name", 2)  # fmt: skip
     if not os.access(out.parent, os.W_OK):
         _fail(f"-o {out}: cannot write in {out.parent}: choose a directory that is yours", 2)
     with _session(endpoint) as s:
@@ -183,20 +194,31 @@ def _record_mcap(
             except OSError as e:  # closing needs the disk too
                 failed = failed or e
     if failed is not None:
-        where = ", ".join(str(p) for p in rec.out.paths) or str(out)
-        _fail(
-            f"writing {where} failed after {time.monotonic() - start:.1f} s: "
-            f"{failed.strerror or failed} (a full disk?); the recording stopped, and what was "
-            f"flushed before is in the file: `imud record --recover {where}` indexes it",
-            1,
-        )
+        _fail(_write_failure(failed, rec.out.paths, out, time.monotonic() - start), 1)
     _summary(rec, time.monotonic() - start, tty)
+
+
+def _write_failure(e: OSError, paths: list[Path], out: Path, elapsed: float) -> str:
+    """What a failed write means for the files: one that could not be made holds nothing; one
+    cut off mid-way holds what was flushed."""
+    cut = [p for p in paths if p.exists() and p.stat().st_size > 0]
+    why = e.strerror or str(e)
+    if e.filename is not None and not Path(e.filename).exists():
+        return f"cannot create {e.filename}: {why}; the recording stopped after {elapsed:.1f} s"
+    last = cut[-1] if cut else out
+    return (
+        f"writing {last} failed after {elapsed:.1f} s: {why} (a full disk?); the recording "
+        f"stopped, and what was flushed before is in the file: `imud record --recover {last}` "
+        "indexes it"
+    )
 
 
 def _recover(broken: Path, out: Path | None) -> None:
     from imud.recording.recover import RecoverError, recover
 
     out = out or broken.with_name(f"{broken.stem}-recovered.mcap")
+    if out.suffix != ".mcap":
+        _fail(f"-o {out}: the recovered file is MCAP: name it .mcap", EXIT_USAGE)
     if out.exists():
         _fail(f"{out} exists; give -o for where the recovered file goes", EXIT_USAGE)
     try:
