@@ -902,15 +902,24 @@ def apply_cmd(
     """Apply a calibration file to an uncorrected recording with exactly the daemon's code
     (imud.pipeline.correct), writing the corrected recording."""
     from imud.calib.csvio import CsvError, CsvWriter, read_comments, read_csv
-    from imud.calib.file import CalibrationError, load_calibration
+    from imud.calib.file import CalibrationError, load_calibration, read_calibration
     from imud.channels import Channel, SampleFlag
     from imud.pipeline import correct
 
     _new_file(Path(out), "--out")
     try:
         cal = load_calibration(Path(cal_path))
+        source: dict[str, str] = {}
         if _is_mcap(from_csv):  # a recording: the device's samples, as the offline fits read it
-            rec, _, _ = read_mcap_device(Path(from_csv), device, False)
+            rec, chip, name = read_mcap_device(Path(from_csv), device, False)
+            source = {"device": name, "chip": chip or "?", "source": from_csv}
+            made_for = read_calibration(Path(cal_path)).chip
+            if chip and made_for and made_for != chip:
+                _fail(
+                    f"{cal_path} is a calibration of a {made_for}, and {name} in {from_csv} is "
+                    f"a {chip}: give that device's calibration",
+                    EXIT_USAGE,
+                )
         else:
             rec = read_csv(
                 Path(from_csv),
@@ -933,7 +942,7 @@ def apply_cmd(
     if clamped is not None:
         flags[clamped] |= np.uint32(SampleFlag.TEMPERATURE_OUTSIDE_CALIBRATION)
     comments = {
-        **({} if _is_mcap(from_csv) else read_comments(Path(from_csv))),
+        **(source if _is_mcap(from_csv) else read_comments(Path(from_csv))),
         "samples": f"corrected with {cal_path}",
     }
     comments.pop("format", None)

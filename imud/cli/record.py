@@ -130,8 +130,8 @@ def _record_mcap(
         taken = sorted(out.parent.glob(f"{out.stem}_[0-9][0-9][0-9]{out.suffix}"))
         if taken:
             parts = f"{out.stem}_000{out.suffix}, {out.stem}_001{out.suffix}, ..."
-            names = ", ".join(p.name for p in taken[:3])
-            _fail(f"-o {out}: split, its parts are {parts}, and {names} exist already; "
+            there = ", ".join(p.name for p in taken[:3])
+            _fail(f"-o {out}: split, its parts are {parts}, and {there} exist already; "
                   "choose another name", 2)  # fmt: skip
     if not os.access(out.parent, os.W_OK):
         _fail(f"-o {out}: cannot write in {out.parent}: choose a directory that is yours", 2)
