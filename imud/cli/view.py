@@ -124,15 +124,17 @@ def _file(out: Any, stop: threading.Event, path: Path, layout_path: str | None, 
         rec = open_recording(path)
     except McapInputError as e:
         _fail(str(e), EXIT_USAGE)
-    if not rec.indexed:
-        _fail(f"{rec.warning}; then view the recovered file", EXIT_USAGE)
+    if rec.warning:
+        click.echo(f"imud: {rec.warning}", err=True)
     devices = [rec.info.get(d, {"name": d}) for d in sorted(rec.devices)]
-    _write_layout(layout_path, devices, "")
+    found = rec.daemon_config()
+    namespace = str(((found[0] if found else {}).get("ros2") or {}).get("namespace", ""))
+    _write_layout(layout_path, devices, namespace)
     _announce(out, str(path))
-    native = set(rec.devices.values())
+    click.echo("it plays once a client subscribes", err=True)
     while not stop.is_set():
         try:
-            _play(out, stop, path, native)
+            _play(out, stop, rec)
         except Exception as e:
             _fail(f"{path}: damaged: {e}; `imud record --recover {path}` saves the rest", 1)
         if not loop:
@@ -140,21 +142,62 @@ def _file(out: Any, stop: threading.Event, path: Path, layout_path: str | None, 
             stop.wait()
 
 
-def _play(out: Any, stop: threading.Event, path: Path, native: set[str]) -> None:
-    """The file's messages (less the native batches) to `out` at their pace, once."""
-    from mcap.reader import make_reader
+def _play(out: Any, stop: threading.Event, rec: Any) -> None:
+    """The file's messages (less the native batches) to `out` at their pace, once, from when a
+    client first subscribes; from the native batches, /imud/status each second of the file (its
+    devices' rate, lost samples and temperature, as a daemon's status says them)."""
+    from mcap.reader import NonSeekingReader, make_reader
 
-    with open(path, "rb") as f:
-        reader = make_reader(f)
+    from imud.channels import Channel
+    from imud.recording.schemas import batch_wire
+    from imud.wire import decode
+
+    native = {topic: name for name, topic in rec.devices.items()}
+    if rec.indexed:  # every topic there to subscribe to before it plays
+        with open(rec.path, "rb") as f:
+            summary = make_reader(f).get_summary()
+        if summary is not None:
+            out.announce([
+                (c.topic, summary.schemas[c.schema_id].name)
+                for c in summary.channels.values()
+                if c.topic not in native and c.schema_id in summary.schemas
+            ])  # fmt: skip
+    while not stop.is_set() and not out.subscribed():
+        stop.wait(0.05)
+    counts = {
+        name: {"name": name, "state": "running", "samples": 0, "lost_samples": 0,
+               "measured_rate_hz": 0.0, "temperature_c": None}
+        for name in rec.devices
+    }  # fmt: skip
+    second: dict[str, int] = dict.fromkeys(rec.devices, 0)
+    with open(rec.path, "rb") as f:
+        reader = make_reader(f) if rec.indexed else NonSeekingReader(f)
         t0_log: int | None = None
+        next_status: int | None = None
         t0 = time.monotonic()
-        for schema, channel, message in reader.iter_messages(log_time_order=True):
+        for schema, channel, message in reader.iter_messages(log_time_order=rec.indexed):
             if stop.is_set():
                 break
-            if channel.topic in native or schema is None:
-                continue
             t0_log = message.log_time if t0_log is None else t0_log
+            next_status = message.log_time + 10**9 if next_status is None else next_status
             wait = t0 + (message.log_time - t0_log) / 1e9 - time.monotonic()
             if wait > 0:
                 stop.wait(wait)
-            out.add(channel.topic, schema.name, message.log_time, message.data)
+            device = native.get(channel.topic)
+            if device is not None:
+                b = decode(batch_wire(message.data))
+                c = counts[device]
+                c["lost_samples"] += b.lost_before if c["samples"] else 0
+                c["samples"] += b.count
+                second[device] += b.count
+                temp = b.get(Channel.TEMPERATURE)
+                if temp is not None and temp.size:
+                    c["temperature_c"] = round(float(temp[-1]), 2)
+            elif schema is not None:
+                out.add(channel.topic, schema.name, message.log_time, message.data)
+            if message.log_time >= next_status:
+                for name, c in counts.items():
+                    c["measured_rate_hz"] = float(second[name])
+                    second[name] = 0
+                out.status({"devices": list(counts.values())}, message.log_time)
+                next_status += 10**9

@@ -60,6 +60,10 @@ class FoxgloveOut:
         self.messages = 0
 
     def add(self, topic: str, type_name: str, log_ns: int, payload: bytes) -> None:
+        self._channel(topic, type_name).log(payload, log_time=log_ns)
+        self.messages += 1
+
+    def _channel(self, topic: str, type_name: str) -> Any:
         ch = self._channels.get(topic)
         if ch is None:
             schema = self._fox.Schema(
@@ -68,8 +72,17 @@ class FoxgloveOut:
             ch = self._channels[topic] = self._fox.Channel(
                 topic, message_encoding="cdr", schema=schema
             )
-        ch.log(payload, log_time=log_ns)
-        self.messages += 1
+        return ch
+
+    def subscribed(self) -> bool:
+        """Whether a client has subscribed to any channel (a viewer is watching)."""
+        return any(ch.has_sinks() for ch in (*self._channels.values(), self._status))
+
+    def announce(self, topics: list[tuple[str, str]]) -> None:
+        """Channels for (topic, message type) before their first message, so a client can
+        subscribe to them before anything plays."""
+        for topic, type_name in topics:
+            self._channel(topic, type_name)
 
     def status(self, body: dict[str, Any], log_ns: int) -> None:
         self._status.log(json.dumps(body), log_time=log_ns)
