@@ -865,7 +865,7 @@ def mag(field_ut: float | None, strict: bool, tolerance_ut: float | None, **opts
 
     rec = job.recording(lambda j: capture_for(j, 90.0, need_mag=True))
     if rec.mag is None:
-        _fail(f"{rec.source}: no magnetometer columns (mx, my, mz)", EXIT_USAGE, job.as_json)
+        _fail(f"{rec.source}: no magnetometer data (mx, my, mz)", EXIT_USAGE, job.as_json)
     rec, notes = _prepared(job, rec)
     try:
         from imud.calib.acceptance import Acceptance

@@ -58,7 +58,7 @@ def replay(
 
     from imud.recording.reader import McapInputError, open_recording
     from imud.recording.replay import Replay, first_samples
-    from imud.zerrors import describe
+    from imud.zerrors import clean
 
     try:
         rec = open_recording(Path(path))
@@ -82,7 +82,14 @@ def replay(
     try:
         session = zenoh.open(zenoh.Config.from_json5(json.dumps(conf)))
     except Exception as e:  # the endpoint is taken (a daemon runs there), or not an endpoint
-        _fail(f"cannot listen on {listen}: {describe(e, [listen])}; give --listen", EXIT_USAGE)
+        why = clean(str(e))
+        taken = "address already in use" in why.lower() or "os error 98" in why.lower()
+        _fail(
+            f"cannot listen on {listen}: "
+            + ("it is taken (a daemon runs there?)" if taken else why)
+            + "; give --listen tcp/127.0.0.1:PORT with a free port",
+            EXIT_USAGE,
+        )
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

@@ -54,7 +54,8 @@ def draw(s: Series, path: Path) -> None:
         for k, axis in enumerate(names):
             ax.plot(t[::step], data[::step, k], lw=0.7, label=axis)
         ax.set_ylabel(label)
-        ax.legend(loc="upper right", fontsize="small", ncol=3)
+        # beside the panel, never over a trace (gravity sits at the top of the accel panel)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize="small", frameon=False)
     ax = axes[len(rows)]
     seconds = np.floor(t).astype(np.int64)
     counts = np.bincount(seconds)
@@ -63,7 +64,7 @@ def draw(s: Series, path: Path) -> None:
     ax.set_ylim(0, 1.15 * max(1, int(full.max())))  # from zero: a dip reads as what it is
     ax.set_ylabel("samples/s")
     if s.temp is not None and extra == 2:
-        axes[-1].plot(t[::step], s.temp[::step], lw=0.8, color="tab:red")
+        axes[-1].plot(t[::step], s.temp[::step], lw=0.8, color="tab:purple")  # red marks gaps
         axes[-1].set_ylabel("temperature [°C]")
     for a in axes:
         for g in gaps:
