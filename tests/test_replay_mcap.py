@@ -68,23 +68,34 @@ def imud(*args: str, timeout: float = 120.0) -> subprocess.CompletedProcess[str]
     )
 
 
+def replay(orig: Path, *args: str) -> tuple[subprocess.Popen[str], str]:
+    """`imud replay ORIG ARGS` on a free loopback port: the process and its endpoint."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    player = subprocess.Popen(
+        [sys.executable, "-m", "imud", "replay", str(orig), "--listen", endpoint, *args],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    return player, endpoint
+
+
+def answering(endpoint: str) -> subprocess.CompletedProcess[str]:
+    """`imud status --json` against a replay, once it listens (a bound for a broken one)."""
+    for _ in range(100):
+        r = imud("status", "--connect", endpoint, "--json", timeout=30)
+        if r.returncode == 0:
+            return r
+        time.sleep(0.1)
+    return r
+
+
 def test_replay_then_record_gives_the_same_native_bytes(
     recording: tuple[DaemonProc, Path], tmp_path: Path
 ) -> None:
     _, orig = recording
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    player = subprocess.Popen(
-        [sys.executable, "-m", "imud", "replay", str(orig), "--listen", endpoint, "--wait",
-         "--rate", "2"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+    player, endpoint = replay(orig, "--wait", "--rate", "2")
     try:
         again = tmp_path / "again.mcap"
-        for _ in range(100):  # until the player listens
-            r = imud("status", "--connect", endpoint, "--json", timeout=30)
-            if r.returncode == 0:
-                break
-            time.sleep(0.1)
+        r = answering(endpoint)
         assert r.returncode == 0, r.stderr
         assert '"replaying": "' in r.stdout and '"chip": "icm42688p"' in r.stdout
         assert '"state": "running"' in r.stdout  # as a daemon's, so every client takes it
@@ -215,18 +226,10 @@ def test_thirty_seconds_of_the_quick_start_round_trip(tmp_path: Path) -> None:
     finally:
         code, _ = d.stop()
     assert code == 0, d.log.read_text()
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    player = subprocess.Popen(
-        [sys.executable, "-m", "imud", "replay", str(orig), "--listen", endpoint, "--wait",
-         "--rate", "2"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+    player, endpoint = replay(orig, "--wait", "--rate", "2")
     try:
         again = tmp_path / "again.mcap"
-        for _ in range(100):
-            if imud("status", "--connect", endpoint, timeout=30).returncode == 0:
-                break
-            time.sleep(0.1)
+        assert answering(endpoint).returncode == 0
         r = imud("record", "--connect", endpoint, "-o", str(again), "--duration", "20")
         assert r.returncode == 0, r.stdout + r.stderr
         _, err = player.communicate(timeout=60)
@@ -276,11 +279,7 @@ def test_a_replay_has_the_recorded_configs_ros2_output(tmp_path: Path) -> None:
     with open(orig, "rb") as f:
         recorded = {m.data for _, ch, m in make_reader(f).iter_messages()
                     if ch and ch.topic == "/imu0/imu/data_raw"}  # fmt: skip
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    player = subprocess.Popen(
-        [sys.executable, "-m", "imud", "replay", str(orig), "--listen", endpoint, "--wait"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+    player, endpoint = replay(orig, "--wait")
     got: list[bytes] = []
     try:
         time.sleep(1.0)
@@ -335,12 +334,7 @@ def test_a_loop_goes_on_as_one_stream_stamped_now(
     import imud.client as ic
 
     _, orig = recording
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    player = subprocess.Popen(
-        [sys.executable, "-m", "imud", "replay", str(orig), "--listen", endpoint, "--wait",
-         "--loop", "--rate", "4", "--device", "still0"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+    player, endpoint = replay(orig, "--wait", "--loop", "--rate", "4", "--device", "still0")
     try:
         time.sleep(1.0)
         started = time.time_ns()
@@ -375,17 +369,9 @@ def test_live_calibration_runs_against_a_replay(
     import json
 
     _, orig = recording
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    player = subprocess.Popen(
-        [sys.executable, "-m", "imud", "replay", str(orig), "--listen", endpoint, "--loop",
-         "--device", "still0"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+    player, endpoint = replay(orig, "--loop", "--device", "still0")
     try:
-        for _ in range(100):
-            if imud("status", "--connect", endpoint, timeout=30).returncode == 0:
-                break
-            time.sleep(0.1)
+        assert answering(endpoint).returncode == 0
         out_file = str(tmp_path / "c.toml")
         r = imud("calibrate", "gyro", "--device", "still0", "--connect", endpoint,
                  "--out", out_file, "--duration", "4", "--dry-run", "--json")  # fmt: skip
