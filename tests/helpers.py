@@ -146,3 +146,18 @@ def native_means(payloads: list[bytes], k: int) -> dict[int, tuple[np.ndarray, n
             mean_t = int(stamps[sel].astype(object).sum() // k)
             out[mean_t] = (gyro[sel].mean(axis=0), accel[sel].mean(axis=0))
     return out
+
+
+def status_after(d: Any, batches: list[Any], device: int = 0, timeout: float = 20.0) -> Any:
+    """The device's status once its snapshot was taken after the last of `batches` was
+    published (a bus process reports status periodically, so a snapshot taken just after the
+    batches arrived can lag them): its samples and lost samples reach that batch's seq end."""
+    import time
+
+    end_seq = batches[-1].first_seq + batches[-1].count if batches else 0
+    until = time.monotonic() + timeout  # a bound for a broken daemon
+    while True:
+        st = d.status()["devices"][device]
+        if st["samples"] + st["lost_samples"] >= end_seq or time.monotonic() > until:
+            return st
+        time.sleep(0.05)

@@ -19,6 +19,7 @@ import pytest
 import imud.client as ic
 from imud.channels import Channel, SampleFlag
 from tests.daemon_fixture import DaemonProc
+from tests.helpers import status_after
 
 CONFIG = """
 [[device]]
@@ -42,7 +43,9 @@ def test_adis16465_streams_rates_and_deltas(tmp_path: Path) -> None:
         d.wait_started()
         time.sleep(1.0)  # the driver's rate estimate gets its baseline
         batches = [ic.decode(x) for x in d.collect("imud/adis/imu", 3.0, depth=16384)]
-        st = d.status()["devices"][0]
+        # the bus process reports status periodically: wait for its snapshot to count the
+        # samples already received, or its counters lag the batches compared with them
+        st = status_after(d, batches)
     finally:
         code, _ = d.stop()
     assert code == 0, d.log.read_text()
