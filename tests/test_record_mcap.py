@@ -377,3 +377,35 @@ def test_an_unwritable_directory_is_said(daemon: DaemonProc, tmp_path: Path) -> 
     ro.mkdir(mode=0o500)
     r = record(daemon, "-o", str(ro / "x.mcap"), "--duration", "1")
     assert r.returncode == 2 and "cannot write in" in r.stderr, r.stderr
+
+
+def test_progress_says_when_the_daemon_stops_answering(daemon: DaemonProc, tmp_path: Path) -> None:
+    """A daemon frozen (SIGSTOP) for a while: the recorder's progress lines say it does not
+    answer, rather than counts that just stop; thawed, the recording goes on and ends cleanly."""
+    path = tmp_path / "frozen.mcap"
+    p = subprocess.Popen(
+        [sys.executable, "-m", "imud", "record", "--connect", daemon.endpoint, "-o", str(path)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert p.stderr is not None
+    said = False
+    try:
+        assert " samples " in p.stderr.readline()
+        os.kill(daemon.proc.pid, signal.SIGSTOP)
+        try:
+            for _ in range(30):  # progress lines, one a second: a bound, not a pace
+                if "no answer from the daemon" in p.stderr.readline():
+                    said = True
+                    break
+        finally:
+            os.kill(daemon.proc.pid, signal.SIGCONT)
+        for _ in range(30):
+            if "no answer from the daemon" not in p.stderr.readline():
+                break
+    finally:
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=60)
+    assert said
+    assert p.returncode == 0, err
+    with open(path, "rb") as f:
+        assert make_reader(f).get_summary() is not None  # closed whole

@@ -173,6 +173,7 @@ def _record_mcap(
         next_status = start + 1.0  # a flush point and a progress line, at least 1 s apart
         tty = sys.stderr.isatty()
         failed: OSError | None = None
+        silent_since: float | None = None  # the daemon stopped answering status at
         try:
             while not stop.is_set() and (end is None or time.monotonic() < end):
                 rec.drain(0.2)
@@ -183,9 +184,11 @@ def _record_mcap(
                     try:
                         devs = get_status(s, prefix, timeout=0.5).get("devices", [])
                         rec.status([d for d in devs if d.get("name") in names], time.time_ns())
-                    except NoDaemon:
-                        pass  # the daemon is restarting: the batches say what they say
-                    _progress(rec, now - start, tty)
+                        silent_since = None
+                    except NoDaemon:  # restarting, or gone: the recording goes on when it is back
+                        silent_since = silent_since or now
+                    silent = None if silent_since is None else now - silent_since
+                    _progress(rec, now - start, tty, silent)
         except OSError as e:  # the disk is full, or went away: what was flushed is there
             failed = e
         finally:
@@ -241,7 +244,7 @@ def _recover(broken: Path, out: Path | None) -> None:
         click.echo(f"  {topic}: {n:,}")
 
 
-def _progress(rec: Any, elapsed: float, tty: bool) -> None:
+def _progress(rec: Any, elapsed: float, tty: bool, silent_s: float | None = None) -> None:
     c = rec.counts.values()
     samples = sum(x.samples for x in c)
     line = (
@@ -249,6 +252,8 @@ def _progress(rec: Any, elapsed: float, tty: bool) -> None:
         f"{sum(x.lost for x in c):,} lost  {sum(x.dropped for x in c):,} dropped  "
         f"{rec.out.bytes_written() / 1e6:.1f} MB  {samples / max(elapsed, 1e-9):,.0f} samples/s"
     )
+    if silent_s is not None:  # said, so a frozen count is not taken for a frozen recorder
+        line += f"  (no answer from the daemon for {silent_s:.0f} s)"
     click.echo(("\r" + line) if tty else line, err=True, nl=not tty)
 
 
