@@ -409,3 +409,63 @@ def test_progress_says_when_the_daemon_stops_answering(daemon: DaemonProc, tmp_p
     assert p.returncode == 0, err
     with open(path, "rb") as f:
         assert make_reader(f).get_summary() is not None  # closed whole
+
+
+CALIBRATED = """
+[[device]]
+name = "imu0"
+chip = "mpu6050"
+bus = { kind = "sim", bus = "simR", address = 0x68 }
+odr_hz = 500
+dlpf_hz = 98
+calibration = "imu0.cal.toml"
+[device.sim]
+seed = 6
+"""
+CALIBRATION = """version = 1
+
+[gyro]  # rad/s
+bias = [0.011, -0.007, 0.004]
+scale = [1.0, 1.0, 1.0]
+"""
+
+
+def test_raw_beside_the_corrected_stream_is_what_a_calibration_fits(tmp_path: Path) -> None:
+    """A device with a calibration applied, recorded with --raw: the file holds both streams,
+    the same samples (seq for seq) before and after the correction, and `calibrate --from`
+    fits the uncorrected one (refused without it)."""
+    import json
+
+    (tmp_path / "imu0.cal.toml").write_text(CALIBRATION)
+    d = DaemonProc(tmp_path, CALIBRATED)
+    try:
+        d.wait_started()
+        both = tmp_path / "both.mcap"
+        r = d.cli("record", "--connect", d.endpoint, "-o", str(both), "--raw", "--duration", "3")
+        assert r.returncode == 0, r.stdout + r.stderr
+        plain = tmp_path / "plain.mcap"
+        r = d.cli("record", "--connect", d.endpoint, "-o", str(plain), "--duration", "2")
+        assert r.returncode == 0, r.stdout + r.stderr
+    finally:
+        code, _ = d.stop()
+    assert code == 0, d.log.read_text()
+    corrected = {decode(p).first_seq: decode(p) for p in native(both)}
+    with open(both, "rb") as f:
+        raw = [decode(batch_wire(m.data)) for _, ch, m in make_reader(f).iter_messages()
+               if ch and ch.topic == "/imud/imu0/raw"]  # fmt: skip
+    pairs = [(b, corrected[b.first_seq]) for b in raw if b.first_seq in corrected]
+    assert len(pairs) > 10
+    for rb, cb in pairs:  # the calibration's gyro bias, and only it, between them
+        assert np.array_equal(rb.t_ns, cb.t_ns)
+        assert np.allclose(rb.gyro - cb.gyro, [0.011, -0.007, 0.004], rtol=0, atol=2e-6)
+    r = subprocess.run([sys.executable, "-m", "imud", "calibrate", "gyro", "--from", str(both),
+                        "--device", "imu0", "--dry-run", "--json"],
+                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
+    bias = json.loads(r.stdout)["bias"]
+    gyro = np.concatenate([b.gyro for b in raw]).astype(np.float64)
+    np.testing.assert_allclose(bias, gyro.mean(axis=0), atol=1e-12)
+    r = subprocess.run([sys.executable, "-m", "imud", "calibrate", "gyro", "--from", str(plain),
+                        "--device", "imu0", "--dry-run"],
+                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 2 and "record with --raw" in r.stderr, r.stderr

@@ -994,13 +994,14 @@ def read_mcap_device(path: Path, name: str | None, as_json: bool) -> tuple[Any, 
                     as_json,
                 )
             name = next(iter(rec.devices))
-        d = device_data(rec, name)
+        # what a calibration is fitted to: the uncorrected stream where it was recorded
+        d = device_data(rec, name, raw=name in rec.raw)
     except McapInputError as e:
         _fail(str(e), EXIT_USAGE, as_json)
     if d.calibrated:
         _fail(
             f"{path}: {name}'s samples were corrected by a calibration when recorded; "
-            "calibrate from uncorrected ones (remove the device's calibration, record again)",
+            "calibrate from uncorrected ones: record with --raw (`imud record -o F.mcap --raw`)",
             EXIT_USAGE,
             as_json,
         )

@@ -46,7 +46,12 @@ from imud.cli.common import (
 @click.option(
     "--csv", "csv_path", type=click.Path(dir_okay=False), help="one device into a CSV recording"
 )
-@click.option("--raw", is_flag=True, help="--csv: the uncorrected stream (what calibration needs)")
+@click.option(
+    "--raw",
+    is_flag=True,
+    help="the uncorrected stream (what calibration needs): --csv writes it alone, -o beside "
+    "the corrected one",
+)
 @click.option("--duration", type=click.FloatRange(min=0.1), help="seconds (default: until Ctrl-C)")
 @click.option(
     "--split-size",
@@ -97,14 +102,13 @@ def record(
             _fail("--split-size/--split-duration split MCAP files (-o), not a CSV", 2)
         _record_csv(devices[0], Path(csv_path), raw, duration, endpoint, prefix)
         return
-    if raw:
-        _fail("--raw goes with --csv; an MCAP recording holds the corrected stream", 2)
     if split_size is not None and split_duration is not None:
         _fail("give --split-size or --split-duration, not both", 2)
     assert mcap_path is not None
     _record_mcap(
-        list(devices), Path(mcap_path), duration, split_size, split_duration, endpoint, prefix
-    )
+        list(devices), Path(mcap_path), duration, split_size, split_duration, endpoint, prefix,
+        raw,
+    )  # fmt: skip
 
 
 def _record_mcap(
@@ -115,6 +119,7 @@ def _record_mcap(
     split_s: float | None,
     endpoint: str,
     prefix: str,
+    raw: bool = False,
 ) -> None:
     from imud.recording.mcapfile import McapOut
     from imud.recording.recorder import Recorder, attachments
@@ -161,7 +166,7 @@ def _record_mcap(
             split_bytes=None if split_mb is None else int(split_mb * 1e6),
             split_s=split_s,
         )
-        rec = Recorder(s, prefix, names, view, mcap)
+        rec = Recorder(s, prefix, names, view, mcap, raw=raw)
         if rec.ros2_error:
             click.echo(f"imud: {rec.ros2_error}", err=True)
         stop = threading.Event()

@@ -32,13 +32,14 @@ class DeviceData:
     invalid: int  # samples a chip marked invalid (left out)
 
 
-def device_data(rec: Recording, device: str) -> DeviceData:
-    """All of `device`'s valid samples. McapInputError when it has none."""
+def device_data(rec: Recording, device: str, raw: bool = False) -> DeviceData:
+    """All of `device`'s valid samples (`raw`: its uncorrected stream, when recorded).
+    McapInputError when it has none."""
     if device not in rec.devices:
         raise McapInputError(
             f"{rec.path} has no device {device!r} (it holds {', '.join(sorted(rec.devices))})"
         )
-    batches = [decode(w) for _, _, w in rec.batches([device])]
+    batches = [decode(w) for _, _, w in rec.batches([device], raw=raw)]
     batches = [b for b in batches if b.count]
     if not batches:
         raise McapInputError(f"{rec.path}: {device} has no samples")

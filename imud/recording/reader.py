@@ -41,6 +41,7 @@ class Recording:
     path: Path
     indexed: bool  # has its summary: seekable, counted
     devices: dict[str, str] = field(default_factory=dict)  # name -> native topic
+    raw: dict[str, str] = field(default_factory=dict)  # name -> its uncorrected stream's topic
     info: dict[str, dict[str, Any]] = field(default_factory=dict)  # name -> status JSON
     attachments: dict[str, bytes] = field(default_factory=dict)
     warning: str | None = None
@@ -64,10 +65,14 @@ class Recording:
         }
         return raw, cal
 
-    def batches(self, devices: list[str] | None = None) -> Iterator[tuple[str, int, bytes]]:
+    def batches(
+        self, devices: list[str] | None = None, raw: bool = False
+    ) -> Iterator[tuple[str, int, bytes]]:
         """(device, log time ns, wire bytes) of the named devices (all by default), in log
-        time order (a stream's own order for a file without its summary)."""
-        topics = {self.devices[d]: d for d in (devices or list(self.devices))}
+        time order (a stream's own order for a file without its summary); `raw`: their
+        uncorrected streams (recorded with --raw)."""
+        which = self.raw if raw else self.devices
+        topics = {which[d]: d for d in (devices or list(self.devices)) if d in which}
         with open(self.path, "rb") as f:
             if self.indexed:
                 it = make_reader(f).iter_messages(topics=list(topics), log_time_order=True)
@@ -122,9 +127,9 @@ def open_recording(path: Path, prefix: str | None = None) -> Recording:
             raise McapInputError(f"{path}: not a readable MCAP file ({e})") from None
     for topic, schema in channels:
         parts = topic.strip("/").split("/")
-        ours = schema == BATCH and len(parts) == 3 and parts[2] == "batch"
+        ours = schema == BATCH and len(parts) == 3 and parts[2] in ("batch", "raw")
         if ours and (prefix is None or parts[0] == prefix):
-            rec.devices[parts[1]] = topic
+            (rec.devices if parts[2] == "batch" else rec.raw)[parts[1]] = topic
     if not rec.devices:
         listed = ", ".join(sorted(t for t, _ in channels)) or "none"
         raise McapInputError(

@@ -45,6 +45,10 @@ def native_topic(prefix: str, device: str) -> str:
     return f"/{prefix}/{device}/batch"
 
 
+def raw_topic(prefix: str, device: str) -> str:
+    return f"/{prefix}/{device}/raw"
+
+
 class Sink(Protocol):
     """Where the recorder's messages go: an MCAP file (McapOut), a Foxglove server."""
 
@@ -79,10 +83,12 @@ class Recorder:
         native: bool = True,
         on_status: Callable[[list[dict[str, Any]], int], None] | None = None,
         hold_ms: float = HOLD_MS,
+        raw: bool = False,
     ) -> None:
         """native: write the native batches too (a file: yes; a live view: no). on_status: also
         given the devices' status once a second. hold_ms: how much of a stream each ROS 2 step
-        takes (a view wants them sooner than a file)."""
+        takes (a view wants them sooner than a file). raw: also each device's uncorrected
+        stream, on `/<prefix>/<device>/raw` (what a calibration is fitted to)."""
         self.session = session
         self.prefix = prefix
         self.devices = list(devices)
@@ -91,8 +97,10 @@ class Recorder:
         self.native = native
         self.on_status = on_status
         self.hold_ms = hold_ms
+        self.raw = raw
         self.counts = {d: Counts() for d in devices}
         self._subs: list[tuple[str, Any]] = []
+        self._raw_subs: list[tuple[str, Any]] = []
         self._config: DaemonConfig | None = None
         self.ros2: Ros2Messages | None = None
         self.ros2_error: str | None = None
@@ -124,6 +132,10 @@ class Recorder:
             ring: Any = zenoh.handlers.RingChannel(self.max_queued)
             sub = self.session.declare_subscriber(data_key(d, self.prefix), ring)
             self._subs.append((d, sub))
+            if self.raw:  # the daemon computes it while someone subscribes
+                raw_ring: Any = zenoh.handlers.RingChannel(self.max_queued)
+                key = data_key(d, self.prefix, raw=True)
+                self._raw_subs.append((d, self.session.declare_subscriber(key, raw_ring)))
 
     def drain(self, timeout_s: float) -> int:
         """Write what arrived, after waiting `timeout_s` for more (the writer wakes a few times a
@@ -135,6 +147,12 @@ class Recorder:
             while (sample := sub.try_recv()) is not None:
                 self._write(device, sample.payload.to_bytes())
                 n += 1
+        for device, sub in self._raw_subs:
+            while (sample := sub.try_recv()) is not None:
+                payload = sample.payload.to_bytes()
+                _, count, _, last_ns, _ = peek(payload)
+                if count:
+                    self.out.add(raw_topic(self.prefix, device), BATCH, last_ns, batch_cdr(payload))
         return n
 
     def _write(self, device: str, payload: bytes) -> None:
@@ -180,9 +198,9 @@ class Recorder:
         try:
             self.drain(0.0)
         finally:
-            for _, s in self._subs:
+            for _, s in (*self._subs, *self._raw_subs):
                 s.undeclare()
-            self._subs = []
+            self._subs, self._raw_subs = [], []
             try:
                 if self.ros2 is not None:
                     self.ros2.flush()
