@@ -910,7 +910,8 @@ def apply_cmd(
     try:
         cal = load_calibration(Path(cal_path))
         source: dict[str, str] = {}
-        if _is_mcap(from_csv):  # a recording: the device's samples, as the offline fits read it
+        from_mcap = _is_mcap(from_csv)
+        if from_mcap:  # a recording: the device's samples, as the offline fits read it
             rec, chip, name = read_mcap_device(Path(from_csv), device, False)
             source = {"device": name, "chip": chip or "?", "source": from_csv}
             made_for = read_calibration(Path(cal_path)).chip
@@ -942,7 +943,7 @@ def apply_cmd(
     if clamped is not None:
         flags[clamped] |= np.uint32(SampleFlag.TEMPERATURE_OUTSIDE_CALIBRATION)
     comments = {
-        **(source if _is_mcap(from_csv) else read_comments(Path(from_csv))),
+        **(source if from_mcap else read_comments(Path(from_csv))),
         "samples": f"corrected with {cal_path}",
     }
     comments.pop("format", None)

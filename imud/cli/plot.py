@@ -7,7 +7,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import click
-import numpy as np
 
 from imud.cli.common import EXIT_USAGE, _fail, _new_file
 
@@ -51,7 +50,6 @@ def _from_mcap(path: Path, devices: list[str]) -> list[Series]:
     from imud.recording.export import device_data
     from imud.recording.plot import Series as Drawn
     from imud.recording.reader import McapInputError, open_recording
-    from imud.wire import decode
 
     try:
         rec = open_recording(path)
@@ -60,13 +58,9 @@ def _from_mcap(path: Path, devices: list[str]) -> list[Series]:
         names = devices or sorted(rec.devices)
         out = []
         for name in names:
-            d = device_data(rec, name)
-            batches = [decode(w) for _, _, w in rec.batches([name])]
-            gaps = np.array(
-                [int(b.t_ns[0]) for b in batches[1:] if b.lost_before and b.count], np.int64
-            )
+            d = device_data(rec, name)  # the file read once: samples, losses, gaps
             temp = d.temp[:, 0] if d.temp is not None and d.temp.ndim == 2 else d.temp
-            out.append(Drawn(name, d.t_ns, d.accel, d.gyro, d.mag, temp, gaps, d.lost))
+            out.append(Drawn(name, d.t_ns, d.accel, d.gyro, d.mag, temp, d.gaps_ns, d.lost))
     except McapInputError as e:
         _fail(str(e), EXIT_USAGE)
     return out

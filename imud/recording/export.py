@@ -30,6 +30,7 @@ class DeviceData:
     calibrated: bool  # the daemon applied a calibration (the corrected stream)
     lost: int  # samples the daemon lost between the recorded batches
     invalid: int  # samples a chip marked invalid (left out)
+    gaps_ns: npt.NDArray[np.int64]  # the first stamp after each of those losses
 
 
 def device_data(rec: Recording, device: str, raw: bool = False) -> DeviceData:
@@ -70,6 +71,7 @@ def device_data(rec: Recording, device: str, raw: bool = False) -> DeviceData:
         calibrated,
         lost,
         int(np.count_nonzero(~ok)),
+        np.array([b.t_ns[0] for b in batches[1:] if b.lost_before], np.int64),
     )
 
 

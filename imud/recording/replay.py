@@ -92,7 +92,7 @@ class Replay:
             )
         self._queryables.append(
             self.session.declare_queryable(
-                f"{self.prefix}/daemon/status", self._answer(self._status)
+                f"{self.prefix}/daemon/status", self._answer(self.status)
             )
         )
         if self.config_view is not None:  # a recorder of this replay keeps it, as of a daemon
@@ -151,9 +151,6 @@ class Replay:
 
     def status(self) -> dict[str, Any]:
         """What the daemon status queryable answers."""
-        return self._status()
-
-    def _status(self) -> dict[str, Any]:
         return {
             "version": f"{__version__} (replaying {self.rec.path.name})",
             "uptime_s": round(self.clock() - self._started, 1),
@@ -184,9 +181,9 @@ class Replay:
             self._pubs[device].put(payload)
             if self.on_batch is not None:
                 self.on_batch(device, payload)
-            if not (decode(payload).flags & FLAG_CALIBRATED):
-                self._raw[device].put(payload)
             b = decode(payload)
+            if not (b.flags & FLAG_CALIBRATED):
+                self._raw[device].put(payload)
             self._last[device] = (b.first_seq + b.count, int(b.t_ns[-1]) if b.count else 0)
             if self.sent[device]:
                 self.lost[device] += b.lost_before
