@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import difflib
 import json
+import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
@@ -65,9 +66,16 @@ def _fail(message: str, code: int, as_json: bool = False) -> NoReturn:
 
 
 # --- talking to a daemon -------------------------------------------------------------------------
+# Zenoh's receive tasks on the thread that polls its sockets, not handed to two more threads:
+# what a subscriber pays per message halves (docs/performance.md §16). Read when the process's
+# first session starts; a ZENOH_RUNTIME of the user's own is kept.
+LEAN_RUNTIME = "(rx: (handover: app))"
+
+
 def _session(endpoint: str, as_json: bool = False) -> Any:
     from imud.session import NoDaemon, open_session
 
+    os.environ.setdefault("ZENOH_RUNTIME", LEAN_RUNTIME)
     try:
         return open_session(endpoint)
     except NoDaemon as e:

@@ -12,6 +12,9 @@ from __future__ import annotations
 import json
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
+
 from imud.recording.schemas import definition
 
 STATUS_TOPIC = "/imud/status"
@@ -62,6 +65,14 @@ class FoxgloveOut:
     def add(self, topic: str, type_name: str, log_ns: int, payload: bytes) -> None:
         self._channel(topic, type_name).log(payload, log_time=log_ns)
         self.messages += 1
+
+    def add_many(
+        self, topic: str, type_name: str, log_ns: npt.NDArray[np.int64], data: bytes, size: int
+    ) -> None:
+        ch = self._channel(topic, type_name)
+        for i, t in enumerate(log_ns.tolist()):
+            ch.log(data[i * size : (i + 1) * size], log_time=t)
+        self.messages += len(log_ns)
 
     def _channel(self, topic: str, type_name: str) -> Any:
         ch = self._channels.get(topic)

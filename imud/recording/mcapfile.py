@@ -22,9 +22,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-from mcap.writer import CompressionType, Writer
+import numpy as np
+import numpy.typing as npt
 
 from imud import __version__
+from imud.recording.mcapwrite import McapWriter
 from imud.recording.schemas import definition
 
 FLUSH_S = 1.0
@@ -43,7 +45,7 @@ class Attachment:
 class _File:
     path: Path
     stream: IO[bytes]
-    writer: Writer
+    writer: McapWriter
     started_ns: int  # the first message's log time
     channels: dict[tuple[str, str], int] = field(default_factory=dict)
     schemas: dict[str, int] = field(default_factory=dict)
@@ -86,14 +88,12 @@ class McapOut:
     def _open(self, first_ns: int) -> _File:
         path = self._name(len(self.paths))
         stream = open(path, "xb")  # noqa: SIM115 - closed by _close_file
-        # zstd: a dependency, and what Foxglove and rosbag2 read
-        writer = Writer(stream, compression=CompressionType.ZSTD, use_summary_offsets=True)
-        writer.start(profile="ros2", library=LIBRARY)
+        writer = McapWriter(stream, profile="ros2", library=LIBRARY)
         for name, data in self.metadata.items():
-            writer.add_metadata(name, data)
+            writer.metadata(name, data)
         for a in self.attachments:
             created = a.created_ns or time.time_ns()
-            writer.add_attachment(created, created, a.name, a.media_type, a.data)
+            writer.attachment(created, created, a.name, a.media_type, a.data)
         self.paths.append(path)
         f = _File(path, stream, writer, first_ns)
         self._file = f
@@ -101,49 +101,72 @@ class McapOut:
         return f
 
     def _close_file(self, f: _File) -> None:
-        f.writer.finish()  # type: ignore[no-untyped-call]
+        f.writer.finish()
         f.stream.flush()
         os.fsync(f.stream.fileno())
         f.stream.close()
         self._file = None
 
     def _sync(self, f: _File) -> None:
-        f.writer.flush()  # type: ignore[no-untyped-call]  # closes the open chunk
+        f.writer.flush()  # closes the open chunk
+        f.stream.flush()
         os.fsync(f.stream.fileno())
         self._last_flush = self.clock()
 
     # --- messages ---------------------------------------------------------------------------
     def add(self, topic: str, type_name: str, log_ns: int, payload: bytes) -> None:
+        """One message."""
+        f = self._at(log_ns)
+        seq = self._sequence.get(topic, 0) + 1
+        self._sequence[topic] = seq
+        f.writer.message(self._cid(f, topic, type_name), log_ns, seq, payload)
+        self._written(f, 1)
+
+    def add_many(
+        self, topic: str, type_name: str, log_ns: npt.NDArray[np.int64], data: bytes, size: int
+    ) -> None:
+        """len(log_ns) messages of `size` bytes each (`data`, end to end), in log-time order: a
+        split due among them starts the next file at the first message it is due for."""
+        n = int(log_ns.shape[0])
+        i = 0
+        while i < n:
+            f = self._at(int(log_ns[i]))
+            j = n
+            if self.split_ns is not None:
+                j = i + int(np.searchsorted(log_ns[i:], f.started_ns + self.split_ns))
+                j = max(j, i + 1)
+            seq = self._sequence.get(topic, 0) + 1
+            self._sequence[topic] = seq + (j - i) - 1
+            cid = self._cid(f, topic, type_name)
+            f.writer.messages(cid, log_ns[i:j], seq, data[i * size : j * size], size)
+            self._written(f, j - i)
+            i = j
+
+    def _at(self, log_ns: int) -> _File:
+        """The file a message logged at `log_ns` goes into (the next one once a split is due)."""
         f = self._file
         if f is not None and self._split_due(f, log_ns):
             self._close_file(f)
             f = None
-        if f is None:
-            f = self._open(log_ns)
+        return self._open(log_ns) if f is None else f
+
+    def _cid(self, f: _File, topic: str, type_name: str) -> int:
         cid = f.channels.get((topic, type_name))
-        if cid is None:
-            cid = self._channel(f, topic, type_name)
-        seq = self._sequence.get(topic, 0) + 1
-        self._sequence[topic] = seq
-        f.writer.add_message(
-            channel_id=cid, log_time=log_ns, data=payload, publish_time=log_ns, sequence=seq
-        )
-        self.messages += 1
+        return self._channel(f, topic, type_name) if cid is None else cid
+
+    def _written(self, f: _File, n: int) -> None:
+        self.messages += n
         if self.clock() - self._last_flush >= self.flush_s:
             self._sync(f)
 
     def _channel(self, f: _File, topic: str, type_name: str) -> int:
         sid = f.schemas.get(type_name)
         if sid is None:
-            sid = f.writer.register_schema(
-                name=type_name, encoding="ros2msg", data=definition(type_name).encode()
-            )
+            sid = f.writer.schema(type_name, "ros2msg", definition(type_name).encode())
             f.schemas[type_name] = sid
         # rosbag2's player reads the QoS it offered from here (empty: its defaults)
         meta = {"offered_qos_profiles": ""}
-        cid = f.writer.register_channel(
-            topic=topic, message_encoding="cdr", schema_id=sid, metadata=meta
-        )
+        cid = f.writer.channel(topic, "cdr", sid, meta)
         f.channels[(topic, type_name)] = cid
         return cid
 

@@ -18,27 +18,27 @@ attachments.
 from __future__ import annotations
 
 import logging
-import struct
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+import numpy as np
+import numpy.typing as npt
 import zenoh
 
 from imud.client import data_key
 from imud.recording.daemoncfg import DaemonConfig
 from imud.recording.mcapfile import Attachment
 from imud.recording.schemas import BATCH, batch_cdr
-from imud.ros2.messages import Ros2Messages, Topic
+from imud.ros2.messages import Payloads, Ros2Messages, Topic
 from imud.wire import peek
 
 log = logging.getLogger("imud.record")
 
 MAX_QUEUED = 16384  # batches a device held for a slow disk before the oldest go (and are counted)
 HOLD_MS = 200.0  # of a stream made into ROS 2 messages in one step: fewer, larger NumPy steps
-_STAMP = struct.Struct("<iI")  # a ROS 2 message's header stamp, after the 4-byte CDR header
 
 
 def native_topic(prefix: str, device: str) -> str:
@@ -55,6 +55,9 @@ class Sink(Protocol):
     paths: list[Path]
 
     def add(self, topic: str, type_name: str, log_ns: int, payload: bytes) -> None: ...
+    def add_many(
+        self, topic: str, type_name: str, log_ns: npt.NDArray[np.int64], data: bytes, size: int
+    ) -> None: ...
     def flush(self) -> None: ...
     def close(self) -> None: ...
     def bytes_written(self) -> int: ...
@@ -176,10 +179,15 @@ class Recorder:
         if self.ros2 is not None:
             self.ros2.batch(device, payload)
 
-    def _ros(self, topic: Topic, payloads: Iterator[bytes]) -> None:
-        for p in payloads:
-            sec, nsec = _STAMP.unpack_from(p, 4)
-            self.out.add(topic.name, topic.type_name, sec * 1_000_000_000 + nsec, p)
+    def _ros(self, topic: Topic, msgs: Payloads) -> None:
+        if isinstance(msgs.records, list):
+            for t, p in zip(msgs.stamps_ns.tolist(), msgs.records, strict=True):
+                self.out.add(topic.name, topic.type_name, t, p)
+        else:  # logged at their header stamps
+            size = msgs.records.dtype.itemsize
+            self.out.add_many(
+                topic.name, topic.type_name, msgs.stamps_ns, msgs.records.tobytes(), size
+            )
 
     def flush(self) -> None:
         """Everything written so far to the disk (a flush point)."""

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from imud.channels import Channel
 from imud.ros2 import diagnostics as diag
@@ -54,7 +55,25 @@ class Topic:
     # relay threads both emit during a reload
 
 
-Emit = Callable[[Topic, Iterator[bytes]], None]
+@dataclass(frozen=True)
+class Payloads:
+    """One step's messages on a topic: each message's header stamp and CDR bytes, a device's as
+    one record array of its fixed layout (a recorder writes them whole), others as a list.
+    Iterating gives each message's bytes."""
+
+    stamps_ns: npt.NDArray[np.int64]
+    records: npt.NDArray[np.void] | list[bytes]
+
+    def __iter__(self) -> Iterator[bytes]:
+        if isinstance(self.records, list):
+            return iter(self.records)
+        return (r.tobytes() for r in self.records)
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+
+Emit = Callable[[Topic, Payloads], None]
 
 
 @dataclass
@@ -231,7 +250,7 @@ class Ros2Messages:
             name = str(d.get("name"))
             statuses.append(diag.device_status(d, self._lost.get(name), period_s))
             self._lost[name] = int(d.get("lost_samples", 0))
-        self._emit(t, iter([diag.encode(now_ns, statuses)]))
+        self._emit(t, Payloads(np.array([now_ns], dtype=np.int64), [diag.encode(now_ns, statuses)]))
 
     def _refresh_covariances(self, dev: _Device) -> None:
         from imud import registry
@@ -316,7 +335,7 @@ class Ros2Messages:
             imu["linear_acceleration"] = v[:, cols[Channel.ACCEL]]
         raw = dev.topics.get("imu/data_raw")
         if raw is not None:
-            self._emit(raw.topic, _cdr(messages(_lay(raw.topic), t, imu, raw.base)))
+            self._emit(raw.topic, Payloads(t, messages(_lay(raw.topic), t, imu, raw.base)))
         for rel, ch, name in _OPTIONAL:
             feed = dev.topics.get(rel)
             if feed is None:
@@ -331,7 +350,7 @@ class Ros2Messages:
             fields = {name: x[:, 0] if ch is Channel.TEMPERATURE else x}
             if ch is Channel.ORIENTATION:
                 fields.update({f: a[have] for f, a in imu.items()})
-            self._emit(feed.topic, _cdr(messages(_lay(feed.topic), tt, fields, feed.base)))
+            self._emit(feed.topic, Payloads(tt, messages(_lay(feed.topic), tt, fields, feed.base)))
 
 
 # a device's matrix columns, in this order: what each channel is as a ROS field
@@ -354,10 +373,6 @@ _OPTIONAL = (
 def _lay(t: Topic) -> Layout:
     assert t.layout is not None  # every device topic has one
     return t.layout
-
-
-def _cdr(records: Any) -> Iterator[bytes]:
-    return (r.tobytes() for r in records)
 
 
 Signature = tuple[int, int, int] | None
