@@ -165,6 +165,9 @@ def _record_mcap(
             meta,
             split_bytes=None if split_mb is None else int(split_mb * 1e6),
             split_s=split_s,
+            # a backstop: the loop below flushes every second, before its progress line (two
+            # timers would close a chunk, and fsync, twice a second)
+            flush_s=2.0,
         )
         rec = Recorder(s, prefix, names, view, mcap, raw=raw)
         if rec.ros2_error:

@@ -306,13 +306,17 @@ class Ros2Messages:
                 parts.append((first, t_ns, values))
         if not parts:
             return
-        seqs = [first + np.arange(t_ns.shape[0], dtype=np.int64) for first, t_ns, _ in parts]
         if len(parts) == 1:
-            seq, t_ns, m = seqs[0], parts[0][1], parts[0][2].astype(np.float64)
+            first, t_ns, m = parts[0][0], parts[0][1], parts[0][2].astype(np.float64)
+            seq = first + np.arange(t_ns.shape[0], dtype=np.int64)
         else:
-            seq = np.concatenate(seqs)
             t_ns = np.concatenate([p[1] for p in parts])
             m = np.concatenate([p[2] for p in parts], dtype=np.float64)
+            # each batch's samples count on from its first seq: one arange, shifted per batch
+            lens = np.array([p[1].shape[0] for p in parts], dtype=np.int64)
+            firsts = np.array([p[0] for p in parts], dtype=np.int64)
+            seq = np.arange(t_ns.shape[0], dtype=np.int64)
+            seq += np.repeat(firsts - (np.cumsum(lens) - lens), lens)
         out = dev.decimator.feed(seq, t_ns, m)
         if not out.n:
             return
