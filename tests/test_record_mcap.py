@@ -29,7 +29,7 @@ import imud.client as ic
 from imud.recording.schemas import batch_wire
 from imud.wire import decode
 from tests.daemon_fixture import DaemonProc
-from tests.helpers import native_means
+from tests.helpers import free_port, native_means
 
 CONFIG = """
 [ros2]
@@ -469,3 +469,39 @@ def test_raw_beside_the_corrected_stream_is_what_a_calibration_fits(tmp_path: Pa
                         "--device", "imu0", "--dry-run"],
                        capture_output=True, text=True, timeout=120)  # fmt: skip
     assert r.returncode == 2 and "record with --raw" in r.stderr, r.stderr
+    # a replay publishes the recorded uncorrected stream on /raw (not the corrected one): a
+    # recorder of the replay gets it batch for batch, byte for byte
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    player = subprocess.Popen(
+        [sys.executable, "-m", "imud", "replay", str(both), "--listen", endpoint, "--wait",
+         "--rate", "2"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    again = tmp_path / "again.mcap"
+    try:
+        for _ in range(100):  # until it answers as a daemon
+            r = subprocess.run([sys.executable, "-m", "imud", "status", "--connect", endpoint],
+                               capture_output=True, text=True, timeout=30)  # fmt: skip
+            if r.returncode == 0:
+                break
+            time.sleep(0.1)
+        r = subprocess.run([sys.executable, "-m", "imud", "record", "--connect", endpoint,
+                            "-o", str(again), "--raw", "--duration", "4"],
+                           capture_output=True, text=True, timeout=120)  # fmt: skip
+        assert r.returncode == 0, r.stdout + r.stderr
+        _, err = player.communicate(timeout=60)
+    finally:
+        player.kill()
+    assert player.returncode == 0, err
+    with open(both, "rb") as f1, open(again, "rb") as f2:
+        raw1 = [
+            m.data
+            for _, ch, m in make_reader(f1).iter_messages()
+            if ch and ch.topic == "/imud/imu0/raw"
+        ]
+        raw2 = [
+            m.data
+            for _, ch, m in make_reader(f2).iter_messages()
+            if ch and ch.topic == "/imud/imu0/raw"
+        ]
+    assert raw2 == raw1

@@ -179,6 +179,8 @@ def foreign(path: Path) -> None:
         (None, ("replay", "{orig}", "--device", "nope"), "has no device 'nope'"),
         (None, ("export", "{orig}", "--csv", "{d}/x.csv"), "give --device NAME"),
         (None, ("replay", "{orig}", "--listen", "{taken}"), "cannot listen on"),
+        (None, ("replay", "{d}/none.mcap"), "does not exist (nor split parts of it"),
+        (None, ("export", "{orig}", "{orig}", "--csv", "{d}/x.csv"), "is named twice"),
     ],
 )
 def test_bad_input_is_said(
@@ -206,6 +208,50 @@ def test_a_file_without_its_summary_is_read_with_a_warning(
     r = imud("export", str(cut), "--csv", str(out), "--device", "still0")
     assert r.returncode == 0, r.stderr
     assert "has no summary" in r.stderr and "imud record --recover" in r.stderr
+
+
+def test_a_split_recording_replays_and_exports_as_one(
+    recording: tuple[DaemonProc, Path], tmp_path: Path
+) -> None:
+    """`-o NAME.mcap --split-duration 1` writes NAME_000.mcap, ...; `export NAME.mcap` and
+    `replay NAME.mcap` take the parts as one recording: every part's batches, in order."""
+    d, _ = recording
+    split = tmp_path / "split.mcap"
+    r = d.cli("record", "--connect", d.endpoint, "-o", str(split), "--duration", "3.5",
+              "--split-duration", "1")  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
+    parts = sorted(tmp_path.glob("split_*.mcap"))
+    assert len(parts) >= 3 and not split.exists()
+    whole: dict[str, list[bytes]] = {}
+    for p in parts:
+        for device, batches in natives(p).items():
+            whole.setdefault(device, []).extend(batches)
+    out = tmp_path / "still0.csv"
+    r = imud("export", str(split), "--csv", str(out), "--device", "still0")
+    assert r.returncode == 0, r.stdout + r.stderr
+    rows = np.loadtxt(out, delimiter=",", comments="#", skiprows=1 + 6)
+    t = np.concatenate([decode(b).t_ns for b in whole["still0"]])
+    assert rows.shape[0] == t.size
+    # the parts named one by one (a shell's glob) are the same recording
+    out2 = tmp_path / "still0-glob.csv"
+    r = imud("export", *map(str, parts), "--csv", str(out2), "--device", "still0")
+    assert r.returncode == 0, r.stdout + r.stderr
+    rows2 = np.loadtxt(out2, delimiter=",", comments="#", skiprows=1 + 6)
+    np.testing.assert_array_equal(rows2, rows)
+    player, endpoint = replay(split, "--wait", "--rate", "2")
+    try:
+        assert answering(endpoint).returncode == 0
+        again = tmp_path / "again.mcap"
+        r = imud("record", "--connect", endpoint, "-o", str(again), "--duration", "4")
+        assert r.returncode == 0, r.stdout + r.stderr
+        _, err = player.communicate(timeout=60)
+    finally:
+        player.kill()
+    assert player.returncode == 0, err
+    assert f"{parts[-1].name} ({len(parts)} parts)" in err
+    b = natives(again)
+    for device in whole:
+        assert b[device] == whole[device], device
 
 
 @pytest.mark.slow

@@ -42,6 +42,14 @@ _connect = click.option(
 _prefix = click.option("--prefix", default="imud", show_default=True, help="key prefix")
 
 
+def _named(rec: Any) -> str:
+    """A recording as messages name it: its file, or a split one's first and last part."""
+    if len(rec.parts) > 1:
+        first, last = rec.parts[0][0], rec.parts[-1][0]
+        return f"{first} ... {last.name} ({len(rec.parts)} parts)"
+    return str(rec.path)
+
+
 def _new_file(path: Path, option: str, as_json: bool = False) -> None:
     """An output file the command will create: its directory there, no file of that name (what
     is already on disk, a recording most of all, is never overwritten)."""

@@ -1,5 +1,6 @@
-"""`imud export FILE.mcap --csv OUT [--device NAME]`: one device of a recording as imud's CSV
-(docs/recording-csv.md), what other tools and spreadsheets read."""
+"""`imud export FILE.mcap... --csv OUT [--device NAME]`: one device of a recording (one file, or
+a split one's parts) as imud's CSV (docs/recording-csv.md), what other tools and spreadsheets
+read."""
 
 from __future__ import annotations
 
@@ -7,24 +8,25 @@ from pathlib import Path
 
 import click
 
-from imud.cli.common import EXIT_USAGE, _fail, _new_file
+from imud.cli.common import EXIT_USAGE, _fail, _named, _new_file
 
 
 @click.command()
-@click.argument("path", type=click.Path(dir_okay=False, exists=True))
+@click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option(
     "--csv", "csv_path", required=True, type=click.Path(dir_okay=False), help="the CSV to write"
 )
 @click.option("--device", help="the device (needed when the file holds more than one)")
-def export(path: str, csv_path: str, device: str | None) -> None:
+def export(paths: tuple[str, ...], csv_path: str, device: str | None) -> None:
     """Write one device of an MCAP recording as a CSV recording."""
     from imud.recording.export import to_csv
-    from imud.recording.reader import McapInputError, open_recording
+    from imud.recording.reader import McapInputError, open_recordings
 
     out = Path(csv_path)
     _new_file(out, "--csv")
     try:
-        rec = open_recording(Path(path))
+        rec = open_recordings([Path(p) for p in paths])
+        path = _named(rec)
         if rec.warning:
             click.echo(f"imud: {rec.warning}", err=True)
         if device is None:

@@ -1,4 +1,4 @@
-"""`imud replay FILE.mcap [--rate X] [--loop] [--device NAME ...] [--restamp]`: a recording
+"""`imud replay FILE.mcap... [--rate X] [--loop] [--device NAME ...] [--restamp]`: a recording
 published as the live daemon publishes it (imud/recording/replay.py), on a Zenoh listener of its
 own (`--listen`, the daemon's default endpoint unless told), until the file ends (or Ctrl-C)."""
 
@@ -12,12 +12,12 @@ from typing import Any
 
 import click
 
-from imud.cli.common import EXIT_USAGE, _fail, _prefix
+from imud.cli.common import EXIT_USAGE, _fail, _named, _prefix
 from imud.recording.reader import Recording
 
 
 @click.command()
-@click.argument("path", type=click.Path(dir_okay=False, exists=True))
+@click.argument("paths", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option(
     "--rate", type=click.FloatRange(min=0.01, max=1000.0), default=1.0, show_default=True,
     help="times real time",
@@ -43,7 +43,7 @@ from imud.recording.reader import Recording
 )
 @_prefix
 def replay(
-    path: str,
+    paths: tuple[str, ...],
     rate: float,
     loop: bool,
     devices: tuple[str, ...],
@@ -56,14 +56,15 @@ def replay(
     """Publish a recording's devices as the daemon does, at its pace."""
     import zenoh
 
-    from imud.recording.reader import McapInputError, open_recording
+    from imud.recording.reader import McapInputError, open_recordings
     from imud.recording.replay import Replay, first_samples
     from imud.zerrors import clean
 
     try:
-        rec = open_recording(Path(path))
+        rec = open_recordings([Path(p) for p in paths])
     except McapInputError as e:
         _fail(str(e), EXIT_USAGE)
+    path = _named(rec)
     if rec.warning:
         click.echo(f"imud: {rec.warning}", err=True)
     names = list(devices) or sorted(rec.devices)

@@ -45,6 +45,8 @@ class Recording:
     info: dict[str, dict[str, Any]] = field(default_factory=dict)  # name -> status JSON
     attachments: dict[str, bytes] = field(default_factory=dict)
     warning: str | None = None
+    parts: list[tuple[Path, bool]] = field(default_factory=list)  # a split recording's files,
+    # in order, each with whether it is indexed (empty: `path` alone)
 
     def daemon_config(self) -> tuple[dict[str, Any], dict[str, str]] | None:
         """The daemon's config file, as recorded (a table), and each device's calibration
@@ -72,21 +74,84 @@ class Recording:
         time order (a stream's own order for a file without its summary); `raw`: their
         uncorrected streams (recorded with --raw)."""
         which = self.raw if raw else self.devices
-        topics = {which[d]: d for d in (devices or list(self.devices)) if d in which}
-        with open(self.path, "rb") as f:
-            if self.indexed:
-                it = make_reader(f).iter_messages(topics=list(topics), log_time_order=True)
-            else:
-                it = NonSeekingReader(f).iter_messages(topics=list(topics), log_time_order=False)
-            try:
-                for _, channel, message in it:
-                    if channel is None or channel.topic not in topics:
-                        continue
-                    yield topics[channel.topic], message.log_time, batch_wire(message.data)
-            except Exception as e:
-                # own errors, struct's, zstd's; a file without a summary ends in one
-                if self.indexed:
-                    raise McapInputError(f"{self.path}: damaged: {e}") from None
+        topics = {which[d]: (d, raw) for d in (devices or list(self.devices)) if d in which}
+        for device, _, log_ns, wire in self._read(topics):
+            yield device, log_ns, wire
+
+    def streams(self, devices: list[str] | None = None) -> Iterator[tuple[str, bool, int, bytes]]:
+        """(device, raw, log time ns, wire bytes): the named devices' native batches and their
+        uncorrected streams (where recorded) together, in log time order."""
+        names = devices or list(self.devices)
+        topics = {self.devices[d]: (d, False) for d in names if d in self.devices}
+        topics.update({self.raw[d]: (d, True) for d in names if d in self.raw})
+        yield from self._read(topics)
+
+    def _read(self, topics: dict[str, tuple[str, bool]]) -> Iterator[tuple[str, bool, int, bytes]]:
+        """The messages of `topics` file by file (a split recording's parts in order)."""
+        for path, indexed in self.parts or [(self.path, self.indexed)]:
+            with open(path, "rb") as f:
+                if indexed:
+                    it = make_reader(f).iter_messages(topics=list(topics), log_time_order=True)
+                else:
+                    it = NonSeekingReader(f).iter_messages(
+                        topics=list(topics), log_time_order=False
+                    )
+                try:
+                    for _, channel, message in it:
+                        if channel is None or channel.topic not in topics:
+                            continue
+                        device, raw = topics[channel.topic]
+                        yield device, raw, message.log_time, batch_wire(message.data)
+                except Exception as e:
+                    # own errors, struct's, zstd's; a file without a summary ends in one
+                    if indexed:
+                        raise McapInputError(f"{path}: damaged: {e}") from None
+
+
+def split_parts(path: Path) -> list[Path]:
+    """The files `imud record -o PATH --split-...` wrote (PATH_000.mcap, PATH_001.mcap, ...),
+    in order; empty when there are none."""
+    found = sorted(path.parent.glob(f"{path.stem}_[0-9][0-9][0-9]{path.suffix or '.mcap'}"))
+    # the series the recorder numbers from 000 on, without a hole
+    out = []
+    for k, p in enumerate(found):
+        if p.name != f"{path.stem}_{k:03d}{path.suffix or '.mcap'}":
+            break
+        out.append(p)
+    return out
+
+
+def open_recordings(paths: list[Path], prefix: str | None = None) -> Recording:
+    """One recording from one file, or from the parts of a split one: the files given in
+    order, or for one name that does not exist (`-o NAME.mcap` with --split-...), its parts
+    NAME_000.mcap, NAME_001.mcap, ... Raises McapInputError naming what is wrong."""
+    if len(paths) == 1 and not paths[0].exists():
+        parts = split_parts(paths[0])
+        if not parts:
+            first = f"{paths[0].stem}_000{paths[0].suffix or '.mcap'}"
+            raise McapInputError(f"{paths[0]} does not exist (nor split parts of it, {first}, ...)")
+        paths = parts
+    seen = set()
+    for p in paths:
+        key = p.resolve()
+        if key in seen:
+            raise McapInputError(f"{p} is named twice: give each part of a recording once")
+        seen.add(key)
+    recs = [open_recording(p, prefix) for p in paths]
+    if len(recs) == 1:
+        return recs[0]
+    out = Recording(paths[0], recs[0].indexed, attachments=recs[0].attachments)
+    out.parts = [(r.path, r.indexed) for r in recs]
+    for r in recs:
+        for name, topic in r.devices.items():
+            out.devices.setdefault(name, topic)
+        for name, topic in r.raw.items():
+            out.raw.setdefault(name, topic)
+        for name, info in r.info.items():
+            out.info.setdefault(name, info)
+    warnings = [r.warning for r in recs if r.warning]
+    out.warning = "; ".join(warnings) if warnings else None
+    return out
 
 
 def open_recording(path: Path, prefix: str | None = None) -> Recording:

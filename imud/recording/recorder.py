@@ -132,13 +132,15 @@ class Recorder:
         this drains: no Python thread runs a sample, and a full ring drops its oldest, never
         waiting on the daemon (the seq gap it leaves is counted as the recorder's)."""
         for d in self.devices:
-            ring: Any = zenoh.handlers.RingChannel(self.max_queued)
-            sub = self.session.declare_subscriber(data_key(d, self.prefix), ring)
-            self._subs.append((d, sub))
+            # the uncorrected stream first: a replay waiting for its subscribers (--wait) starts
+            # once the native one has one, and then this one is there too
             if self.raw:  # the daemon computes it while someone subscribes
                 raw_ring: Any = zenoh.handlers.RingChannel(self.max_queued)
                 key = data_key(d, self.prefix, raw=True)
                 self._raw_subs.append((d, self.session.declare_subscriber(key, raw_ring)))
+            ring: Any = zenoh.handlers.RingChannel(self.max_queued)
+            sub = self.session.declare_subscriber(data_key(d, self.prefix), ring)
+            self._subs.append((d, sub))
 
     def drain(self, timeout_s: float) -> int:
         """Write what arrived, after waiting `timeout_s` for more (the writer wakes a few times a

@@ -9,9 +9,10 @@ restamps: each pass continues the last one's stamps and sequence numbers, so a s
 one stream. `<prefix>/daemon/status` and `<prefix>/<device>/status` answer with the devices as
 the daemon described them when the recording began (state running, the file named, the rate
 and gaps as replayed), so clients find them; `<prefix>/daemon/config` with the recorded config
-and calibration files, so a recorder of the replay keeps them and its ROS 2 messages. Batches a
-recording holds uncorrected (no calibration was applied) go out on `/raw` as well, for `imud
-calibrate --device`.
+and calibration files, so a recorder of the replay keeps them and its ROS 2 messages. A device's
+uncorrected stream, where the recording has it (`imud record --raw`), goes out on `/raw` at its
+pace; otherwise batches recorded uncorrected (no calibration was applied) go out on `/raw` as
+well: either way `imud calibrate --device` works on a replay.
 """
 
 from __future__ import annotations
@@ -165,7 +166,7 @@ class Replay:
         t0_log: int | None = None
         t0 = self.clock()
         first_pass_shift: int | None = None
-        for device, log_ns, wire in self.rec.batches(self.devices):
+        for device, raw, log_ns, wire in self.rec.streams(self.devices):
             if stop.is_set():
                 break
             if t0_log is None:
@@ -178,11 +179,14 @@ class Replay:
             if wait > 0:
                 self.sleep(wait)
             payload = self._shifted(device, wire)
+            if raw:  # the uncorrected stream recorded beside it (--raw)
+                self._raw[device].put(payload)
+                continue
             self._pubs[device].put(payload)
             if self.on_batch is not None:
                 self.on_batch(device, payload)
             b = decode(payload)
-            if not (b.flags & FLAG_CALIBRATED):
+            if not (b.flags & FLAG_CALIBRATED) and device not in self.rec.raw:
                 self._raw[device].put(payload)
             self._last[device] = (b.first_seq + b.count, int(b.t_ns[-1]) if b.count else 0)
             if self.sent[device]:
