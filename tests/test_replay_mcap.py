@@ -177,6 +177,7 @@ def foreign(path: Path) -> None:
         (foreign, ("replay", "{f}"), "holds no imud batches (its topics: /pose)"),
         (foreign, ("export", "{f}", "--csv", "{d}/x.csv"), "holds no imud batches"),
         (None, ("replay", "{orig}", "--device", "nope"), "has no device 'nope'"),
+        (None, ("replay", "{orig}", "--devices", "still0,nope"), "has no device 'nope' (it"),
         (None, ("export", "{orig}", "--csv", "{d}/x.csv"), "give --device NAME"),
         (None, ("replay", "{orig}", "--listen", "{taken}"), "cannot listen on"),
         (None, ("replay", "{d}/none.mcap"), "does not exist (nor split parts of it"),

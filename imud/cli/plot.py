@@ -17,7 +17,10 @@ if TYPE_CHECKING:
 @click.command()
 @click.argument("path", type=click.Path(dir_okay=False, exists=True))
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False), help="the PNG to write")
-@click.option("--device", "devices", multiple=True, help="only these devices (repeat it)")
+@click.option(
+    "--device", "--devices", "devices", multiple=True,
+    help="only these devices (repeat it, or name them with commas: --devices a,b)",
+)  # fmt: skip
 def plot(path: str, out: str | None, devices: tuple[str, ...]) -> None:
     """Draw a recording: each device's axes over time, its rate, gaps marked, temperature."""
     try:
@@ -28,7 +31,11 @@ def plot(path: str, out: str | None, devices: tuple[str, ...]) -> None:
     target = Path(out) if out else src.with_suffix(".png")
     if target.suffix.lower() != ".png":
         _fail(f"-o {target}: name a .png file", EXIT_USAGE)
-    series = _from_mcap(src, list(devices)) if _is_mcap(src) else [_from_csv(src)]
+    series = (
+        _from_mcap(src, [n for d in devices for n in d.split(",") if n])
+        if _is_mcap(src)
+        else [_from_csv(src)]
+    )
     wheres = [
         target if len(series) == 1 else target.with_name(f"{target.stem}_{s.name}.png")
         for s in series

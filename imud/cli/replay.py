@@ -23,7 +23,10 @@ from imud.recording.reader import Recording
     help="times real time",
 )  # fmt: skip
 @click.option("--loop", is_flag=True, help="play it again and again (stamps and seqs go on)")
-@click.option("--device", "devices", multiple=True, help="only these devices (repeat it)")
+@click.option(
+    "--device", "--devices", "devices", multiple=True,
+    help="only these devices (repeat it, or name them with commas: --devices a,b)",
+)  # fmt: skip
 @click.option("--restamp", is_flag=True, help="move the stamps so the first sample is now")
 @click.option(
     "--ros2/--no-ros2",
@@ -67,7 +70,7 @@ def replay(
     path = _named(rec)
     if rec.warning:
         click.echo(f"imud: {rec.warning}", err=True)
-    names = list(devices) or sorted(rec.devices)
+    names = [n for d in devices for n in d.split(",") if n] or sorted(rec.devices)
     unknown = [d for d in names if d not in rec.devices]
     if unknown:
         _fail(
