@@ -32,6 +32,7 @@ from imud.cli.common import (
     _connect,
     _device,
     _fail,
+    _lean_runtime,
     _new_file,
     _prefix,
     _session,
@@ -140,6 +141,7 @@ def _record_mcap(
                   "choose another name", 2)  # fmt: skip
     if not os.access(out.parent, os.W_OK):
         _fail(f"-o {out}: cannot write in {out.parent}: choose a directory that is yours", 2)
+    _lean_runtime()  # every stream subscribed; signals only set a flag
     with _session(endpoint) as s:
         st = _ask_status(s, endpoint, prefix, 2.0)
         for n in names:

@@ -16,7 +16,15 @@ from typing import Any
 
 import click
 
-from imud.cli.common import EXIT_USAGE, _ask_status, _connect, _fail, _prefix, _session
+from imud.cli.common import (
+    EXIT_USAGE,
+    _ask_status,
+    _connect,
+    _fail,
+    _lean_runtime,
+    _prefix,
+    _session,
+)
 
 
 @click.command()
@@ -83,6 +91,7 @@ def _live(
     from imud.recording.recorder import Recorder
     from imud.session import NoDaemon, get_config, get_status
 
+    _lean_runtime()  # every stream subscribed; signals only set a flag
     with _session(endpoint) as s:
         st = _ask_status(s, endpoint, prefix, 2.0)
         devices = st.get("devices", [])
