@@ -420,7 +420,7 @@ odr_hz = 500
 dlpf_hz = 98
 calibration = "imu0.cal.toml"
 [device.sim]
-seed = 6
+seed = 12
 """
 CALIBRATION = """version = 1
 

@@ -44,7 +44,7 @@ import numpy as np
 import numpy.typing as npt
 
 from imud.calib.recording import Recording
-from imud.calib.stats import chi2_sf
+from imud.calib.stats import chi2_sf, f_sf
 
 F64 = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -119,7 +119,16 @@ class StillCheck:
 
 def mean_and_cov(x: F64) -> tuple[F64, F64]:
     """Mean of x (n, k) and the covariance (k, k) of that mean, by automatic block averaging
-    (see the module docstring): correct for coloured noise, unlike cov / n.
+    (see mean_cov_dof)."""
+    mean, cov, _ = mean_cov_dof(x)
+    return mean, cov
+
+
+def mean_cov_dof(x: F64) -> tuple[F64, F64, int]:
+    """Mean of x (n, k), the covariance (k, k) of that mean, by automatic block averaging
+    (see the module docstring): correct for coloured noise, unlike cov / n; and the degrees of
+    freedom that covariance was estimated with (block means less one): a test that divides by
+    it follows Hotelling's T^2, not chi2, when they are few.
 
     Blocking starts at the finest level that still leaves BLOCK_START_KEEP block means (a long
     capture's first levels only cost time: the standard error from that many blocks is already
@@ -158,7 +167,7 @@ def mean_and_cov(x: F64) -> tuple[F64, F64]:
             chosen = len(levels) - 1
     blocks = levels[chosen]
     cov = np.atleast_2d(np.cov(blocks, rowvar=False)) * (size << chosen) / n
-    return mean, cov
+    return mean, cov, blocks.shape[0] - 1
 
 
 def window_len(rate_hz: float) -> int:
@@ -448,8 +457,8 @@ def check_still(rec: Recording) -> StillCheck:
     if np.isnan(rec.accel).all():  # no accelerometer: a slow turn cannot be seen (docstring)
         return StillCheck(True, (), "")
     tenth = max(rec.n // 10, 2)
-    m0, c0 = mean_and_cov(rec.accel[:tenth])
-    m1, c1 = mean_and_cov(rec.accel[-tenth:])
+    m0, c0, nu0 = mean_cov_dof(rec.accel[:tenth])
+    m1, c1, nu1 = mean_cov_dof(rec.accel[-tenth:])
     u = (m0 + m1) / np.linalg.norm(m0 + m1)
     # the direction change, in the plane perpendicular to gravity (rad), and its noise
     proj = np.eye(3) - np.outer(u, u)
@@ -459,7 +468,10 @@ def check_still(rec: Recording) -> StillCheck:
     d2 = basis.T @ d
     c2 = basis.T @ cov @ basis
     chi2 = float(d2 @ np.linalg.solve(c2, d2))
-    if chi2_sf(chi2, 2) < 0.01:
+    # the noise is estimated from as few as BLOCK_MIN_LEN block means a side: Hotelling's T^2
+    # with the fewer dof (chi2 would refuse still captures several times as often as 1 %)
+    nu = min(nu0, nu1)
+    if nu > 2 and f_sf(chi2 * (nu - 1) / (2 * nu), 2, nu - 1) < 0.01:
         dt = _seconds(rec, rec.n - tenth // 2) - _seconds(rec, tenth // 2)
         angle = float(np.linalg.norm(d))
         _, gyro_cov = mean_and_cov(rec.gyro)
