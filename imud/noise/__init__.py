@@ -1,0 +1,1 @@
+"""Noise analysis: Allan deviation of rate samples, streamed (imud/noise/allan.py)."""
