@@ -329,7 +329,7 @@ def test_a_replay_has_the_recorded_configs_ros2_output(tmp_path: Path) -> None:
     player, endpoint = replay(orig, "--wait")
     got: list[bytes] = []
     try:
-        time.sleep(1.0)
+        assert answering(endpoint).returncode == 0  # it listens (however loaded the machine)
         with ic.open_session(endpoint) as s:
             ros = s.declare_subscriber(
                 bridge.data_key("/imu0/imu/data_raw"), lambda x: got.append(x.payload.to_bytes())
@@ -383,7 +383,7 @@ def test_a_loop_goes_on_as_one_stream_stamped_now(
     _, orig = recording
     player, endpoint = replay(orig, "--wait", "--loop", "--rate", "4", "--device", "still0")
     try:
-        time.sleep(1.0)
+        assert answering(endpoint).returncode == 0  # it listens (however loaded the machine)
         started = time.time_ns()
         file_samples = sum(decode(p).count for p in natives(orig)["still0"])
         got = []

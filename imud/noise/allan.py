@@ -87,17 +87,29 @@ class StreamingAllan:
         self.s = np.array([stride(int(x), exact_m) for x in mm], dtype=np.int64)
         self.sums = np.zeros((mm.size, axes))
         self.terms = np.zeros(mm.size, dtype=np.int64)
-        self.n = 0  # samples seen; the integral has n + 1 points, x[0] = 0
+        self.n = 0  # samples seen, over every stretch
+        self.stretches = 1  # runs of contiguous samples (a gap starts another)
         self.offset: F64 | None = None  # the rate taken out (the first chunk's mean)
-        self.x_last = np.zeros(axes)  # x[n]
-        # per stride: the integral at the last indices that are multiples of it (the newest
-        # last), enough for that stride's longest lag, and the index of the first of them
-        self._levels: dict[int, tuple[F64, int]] = {
-            int(v): (np.zeros((1, axes)), 0) for v in np.unique(self.s)
-        }
+        self._restart()
         self._keep = {
             int(v): 2 * int(self.m[self.s == v].max()) // int(v) for v in np.unique(self.s)
         }
+
+    def _restart(self) -> None:
+        self._seg = 0  # samples of this stretch; its integral has _seg + 1 points, x[0] = 0
+        self.x_last = np.zeros(self.k)  # x[_seg]
+        # per stride: the integral at the last indices that are multiples of it (the newest
+        # last), enough for that stride's longest lag, and the index of the first of them
+        self._levels: dict[int, tuple[F64, int]] = {
+            int(v): (np.zeros((1, self.k)), 0) for v in np.unique(self.s)
+        }
+
+    def gap(self) -> None:
+        """Samples are missing here: the next one starts a new stretch. The sums go on over
+        every stretch; no term spans a gap (each term needs 2m + 1 contiguous samples)."""
+        if self._seg:
+            self._restart()
+            self.stretches += 1
 
     def feed(self, y: F64) -> None:
         """The next samples, (n, k) in the axes' order; NaN is refused (cut gaps out first)."""
@@ -114,7 +126,8 @@ class StreamingAllan:
         d = (y - self.offset) * self.tau0
         d[0] += self.x_last
         x = np.cumsum(d, axis=0)
-        first = self.n + 1  # global index of x[0] of this chunk
+        first = self._seg + 1  # index in the stretch of x[0] of this chunk
+        self._seg += y.shape[0]
         self.n += y.shape[0]
         self.x_last = x[-1].copy()
         for s, (hist, start) in list(self._levels.items()):
