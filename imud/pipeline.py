@@ -279,7 +279,9 @@ class Pipeline:
         if self.tracker is not None:
             channels = track(self.tracker, channels, (st.period_ns or self.period_ns) / 1e9)
         batch_flags = (
-            (FLAG_CALIBRATED if cal is not None else 0)
+            # corrected: by a calibration file, or by the tracked gyro bias alone (either way
+            # not what a calibration is fitted to)
+            (FLAG_CALIBRATED if cal is not None or self.tracker is not None else 0)
             | (FLAG_RESYNC if st.lost_before else 0)
             | (FLAG_GAP_UNCERTAIN if st.uncertain else 0)
         )

@@ -90,3 +90,27 @@ def test_bad_samples_are_refused_with_a_reason() -> None:
     with pytest.raises(ValueError, match="must be positive"):
         StreamingAllan(0.0, 3, lags(10))
     assert acc.result().tau_s.size == 0  # nothing fed: no tau yet
+
+
+def test_stretches_between_gaps_are_summed_and_no_term_spans_a_gap() -> None:
+    """Two stretches with a gap between: the result pools allantools' sums of each stretch
+    (its deviation squared times its term count), as if each were analysed alone."""
+    y = _series(60_000, 1, seed=8)
+    a, b = y[:25_000, 0], y[25_000:, 0] + 3.0  # the rate jumps across the gap: no term sees it
+    acc = StreamingAllan(200.0, 1, lags(60_000))
+    acc.feed(a[:, None])
+    acc.gap()
+    acc.feed(b[:, None])
+    r = acc.result()
+    assert acc.stretches == 2 and r.n == 60_000
+    full = r.stride == 1
+    pooled = []
+    for tau in r.tau_s[full]:
+        s = n = 0.0
+        for part in (a, b):
+            _, dev, _, ns = allantools.oadev(part, rate=200.0, data_type="freq", taus=[tau])
+            if len(dev):
+                s += dev[0] ** 2 * ns[0]
+                n += ns[0]
+        pooled.append(np.sqrt(s / n))
+    np.testing.assert_allclose(r.adev[full, 0], pooled, rtol=1e-9)

@@ -239,6 +239,11 @@ def test_a_split_recording_replays_and_exports_as_one(
     assert r.returncode == 0, r.stdout + r.stderr
     rows2 = np.loadtxt(out2, delimiter=",", comments="#", skiprows=1 + 6)
     np.testing.assert_array_equal(rows2, rows)
+    # named out of order: put in time order
+    out3 = tmp_path / "still0-reversed.csv"
+    r = imud("export", *map(str, parts[::-1]), "--csv", str(out3), "--device", "still0")
+    assert r.returncode == 0, r.stdout + r.stderr
+    np.testing.assert_array_equal(np.loadtxt(out3, delimiter=",", comments="#", skiprows=7), rows)
     player, endpoint = replay(split, "--wait", "--rate", "2")
     try:
         assert answering(endpoint).returncode == 0
@@ -253,6 +258,16 @@ def test_a_split_recording_replays_and_exports_as_one(
     b = natives(again)
     for device in whole:
         assert b[device] == whole[device], device
+    # a part and a copy of it overlap in time; a part gone from the series is named
+    copy = tmp_path / "copy.mcap"
+    copy.write_bytes(parts[1].read_bytes())
+    r = imud("export", str(parts[0]), str(parts[1]), str(copy), "--csv", str(tmp_path / "o.csv"),
+             "--device", "still0")  # fmt: skip
+    assert r.returncode == 2 and "overlap in time" in r.stderr, r.stderr
+    parts[1].rename(tmp_path / "elsewhere.mcap")
+    r = imud("replay", str(split))
+    assert r.returncode == 2 and f"split part {parts[1].name} is missing" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
 
 
 @pytest.mark.slow

@@ -38,5 +38,7 @@ def export(paths: tuple[str, ...], csv_path: str, device: str | None) -> None:
         d = to_csv(rec, device, out)
     except McapInputError as e:
         _fail(str(e), EXIT_USAGE)
+    except ValueError as e:  # samples the CSV cannot hold in that order, and the like
+        _fail(f"{path}: cannot write {out}: {e}", 1)
     extra = [f"{n:,} {what}" for n, what in ((d.invalid, "invalid (left out)"), (d.lost, "lost"))]
     click.echo(f"{out}: {d.t_ns.size:,} samples of {device}; " + ", ".join(extra))

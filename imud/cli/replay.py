@@ -108,6 +108,7 @@ def replay(
     click.echo(f"replaying {', '.join(names)} from {path} on {listen} at {rate:g}x", err=True)
     first = first_samples(rec, names) if loop else {}
     passes = 0
+    damaged: str | None = None
     try:
         if wait:
             click.echo("waiting for a subscriber of every device (Ctrl-C to stop)", err=True)
@@ -117,7 +118,7 @@ def replay(
             try:
                 done = player.run_pass(stop)
             except McapInputError as e:  # damage past the summary: said, what was sent stands
-                click.echo(f"imud: {e}", err=True)
+                damaged = str(e)
                 break
             passes += 1
             if not loop or done.batches == 0:
@@ -134,6 +135,8 @@ def replay(
         player.stop()
         session.close()  # type: ignore[no-untyped-call]
     sent = ", ".join(f"{d} {n:,}" for d, n in player.sent.items())
+    if damaged is not None:  # what was sent before it stands; the exit says it did not end well
+        _fail(f"{damaged}; replayed up to there: {sent} samples", 1)
     click.echo(f"replayed {passes} pass(es): {sent} samples", err=True)
 
 

@@ -4,6 +4,7 @@ docs/recording-csv.md) and for every offline `imud calibrate ... --from FILE.mca
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,7 +45,10 @@ def device_data(rec: Recording, device: str, raw: bool = False) -> DeviceData:
     batches = [b for b in batches if b.count]
     if not batches:
         raise McapInputError(f"{rec.path}: {device} has no samples")
-    lost = sum(b.lost_before for b in batches[1:])
+    # the seq gaps: what the daemon announced (lost_before), and a hole between parts too
+    lost = sum(
+        max(0, b.first_seq - (a.first_seq + a.count)) for a, b in itertools.pairwise(batches)
+    )
     calibrated = any(b.flags & FLAG_CALIBRATED for b in batches)
     flags = np.concatenate([b.sample_flags for b in batches])
     ok = (flags & np.uint32(INVALID_MASK)) == 0

@@ -8,6 +8,8 @@ names `imud record --recover`; a file that is not MCAP, is empty, or holds no im
 
 from __future__ import annotations
 
+import glob
+import itertools
 import json
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -20,6 +22,7 @@ from imud.recording.recover import has_footer
 from imud.recording.schemas import BATCH, batch_wire
 
 MAGIC = b"\x89MCAP0\r\n"
+OVERLAP_NS = 250_000_000  # how far split parts' log times may overlap (open_recordings)
 
 
 class McapInputError(ValueError):
@@ -110,21 +113,53 @@ class Recording:
 
 def split_parts(path: Path) -> list[Path]:
     """The files `imud record -o PATH --split-...` wrote (PATH_000.mcap, PATH_001.mcap, ...),
-    in order; empty when there are none."""
-    found = sorted(path.parent.glob(f"{path.stem}_[0-9][0-9][0-9]{path.suffix or '.mcap'}"))
-    # the series the recorder numbers from 000 on, without a hole
+    in order, each replaced by its `-recovered` copy where `imud record --recover` made one of
+    a broken part; empty when there are none. McapInputError for a series with a part missing
+    (naming it)."""
+    suffix = path.suffix or ".mcap"
+    pattern = f"{glob.escape(path.stem)}_[0-9][0-9][0-9]{suffix}"
+    found = sorted(path.parent.glob(pattern))
+    if not found:
+        return []
+    names = {p.name for p in found}
+    last = max(int(p.stem[-3:]) for p in found)
+    missing = [
+        f"{path.stem}_{k:03d}{suffix}"
+        for k in range(last + 1)
+        if f"{path.stem}_{k:03d}{suffix}" not in names
+    ]
+    if missing:
+        have = ", ".join(p.name for p in found)
+        raise McapInputError(
+            f"{path}: split part {', '.join(missing)} is missing (found {have}); name the "
+            "parts to read one by one to go on without it"
+        )
     out = []
-    for k, p in enumerate(found):
-        if p.name != f"{path.stem}_{k:03d}{path.suffix or '.mcap'}":
-            break
-        out.append(p)
+    for p in found:
+        fixed = p.with_name(f"{p.stem}-recovered{p.suffix}")
+        out.append(fixed if not has_footer(p) and fixed.exists() else p)
     return out
 
 
+def _span(rec: Recording) -> tuple[int, int]:
+    """(first, last) log time of a file's native batches (only theirs: a recording of a replay
+    logs its /diagnostics at the wall clock's time)."""
+    if rec.indexed:
+        topics = list(rec.devices.values())
+        with open(rec.path, "rb") as f:
+            r = make_reader(f)
+            first = next(r.iter_messages(topics=topics), None)
+            last = next(r.iter_messages(topics=topics, reverse=True), None)
+        return (first[2].log_time if first else 0), (last[2].log_time if last else 0)
+    times = [log_ns for _, log_ns, _ in rec.batches()]
+    return (times[0], times[-1]) if times else (0, 0)
+
+
 def open_recordings(paths: list[Path], prefix: str | None = None) -> Recording:
-    """One recording from one file, or from the parts of a split one: the files given in
-    order, or for one name that does not exist (`-o NAME.mcap` with --split-...), its parts
-    NAME_000.mcap, NAME_001.mcap, ... Raises McapInputError naming what is wrong."""
+    """One recording from one file, or from the parts of a split one: the files given, put in
+    time order, or for one name that does not exist (`-o NAME.mcap` with --split-...), its
+    parts NAME_000.mcap, NAME_001.mcap, ... Raises McapInputError naming what is wrong (parts
+    that overlap in time are not one recording)."""
     if len(paths) == 1 and not paths[0].exists():
         parts = split_parts(paths[0])
         if not parts:
@@ -140,7 +175,19 @@ def open_recordings(paths: list[Path], prefix: str | None = None) -> Recording:
     recs = [open_recording(p, prefix) for p in paths]
     if len(recs) == 1:
         return recs[0]
-    out = Recording(paths[0], recs[0].indexed, attachments=recs[0].attachments)
+    spans = {id(r): _span(r) for r in recs}
+    recs.sort(key=lambda r: spans[id(r)][0])
+    for a, b in itertools.pairwise(recs):
+        # a split part's last batches may be logged a little after the next part's first (a
+        # batch is logged at its last sample, the split made as batches arrive: one slow
+        # device's batch, tens of ms): a quarter of a second, and never the same start
+        sa, sb = spans[id(a)], spans[id(b)]
+        if sb[0] < sa[1] - OVERLAP_NS or sb[0] == sa[0]:
+            raise McapInputError(
+                f"{a.path} and {b.path} overlap in time: not parts of one recording (a part "
+                "and its -recovered copy? give one of them)"
+            )
+    out = Recording(recs[0].path, recs[0].indexed, attachments=recs[0].attachments)
     out.parts = [(r.path, r.indexed) for r in recs]
     for r in recs:
         for name, topic in r.devices.items():
