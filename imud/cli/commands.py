@@ -76,6 +76,12 @@ def _replay() -> click.Command:
     return replay
 
 
+def _noise() -> click.Command:
+    from imud.cli.noise import noise
+
+    return noise
+
+
 class _Commands(click.Group):
     """The subcommands, the heavy ones (NumPy, the calibration code) loaded only when they run
     or show their help: `imud status` imports no more than it uses."""
@@ -87,6 +93,7 @@ class _Commands(click.Group):
         "export": _export,
         "view": _view,
         "plot": _plot,
+        "noise": _noise,
     }
 
     def list_commands(self, ctx: click.Context) -> list[str]:
