@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import signal
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -224,7 +225,10 @@ def status(
                 for r in status_view(st, endpoint, console):
                     console.print(r)
             return
-        with contextlib.suppress(KeyboardInterrupt):  # Ctrl-C is how --watch ends
+        # Ctrl-C (SIGINT) is how --watch ends, also when a shell that started it in the
+        # background left SIGINT ignored (a non-interactive `cmd &`, nohup): as `imud record`
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        with contextlib.suppress(KeyboardInterrupt):
             _watch(s, endpoint, prefix, timeout, interval, as_json, console)
 
 
