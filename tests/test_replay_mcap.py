@@ -88,6 +88,21 @@ def answering(endpoint: str) -> subprocess.CompletedProcess[str]:
     return r
 
 
+def replay_recorded(src: Path, again: Path, seconds: float = 4.0) -> str:
+    """`imud replay SRC --wait --rate 2` recorded by `imud record -o AGAIN` once it answers as a
+    daemon; the replay's stderr (it exited 0)."""
+    player, endpoint = replay(src, "--wait", "--rate", "2")
+    try:
+        assert answering(endpoint).returncode == 0
+        r = imud("record", "--connect", endpoint, "-o", str(again), "--duration", str(seconds))
+        assert r.returncode == 0, r.stdout + r.stderr
+        _, err = player.communicate(timeout=60)
+    finally:
+        player.kill()
+    assert player.returncode == 0, err
+    return err
+
+
 def test_replay_then_record_gives_the_same_native_bytes(
     recording: tuple[DaemonProc, Path], tmp_path: Path
 ) -> None:
@@ -244,16 +259,8 @@ def test_a_split_recording_replays_and_exports_as_one(
     r = imud("export", *map(str, parts[::-1]), "--csv", str(out3), "--device", "still0")
     assert r.returncode == 0, r.stdout + r.stderr
     np.testing.assert_array_equal(np.loadtxt(out3, delimiter=",", comments="#", skiprows=7), rows)
-    player, endpoint = replay(split, "--wait", "--rate", "2")
-    try:
-        assert answering(endpoint).returncode == 0
-        again = tmp_path / "again.mcap"
-        r = imud("record", "--connect", endpoint, "-o", str(again), "--duration", "4")
-        assert r.returncode == 0, r.stdout + r.stderr
-        _, err = player.communicate(timeout=60)
-    finally:
-        player.kill()
-    assert player.returncode == 0, err
+    again = tmp_path / "again.mcap"
+    err = replay_recorded(split, again)
     assert f"{parts[-1].name} ({len(parts)} parts)" in err
     b = natives(again)
     for device in whole:
@@ -288,16 +295,8 @@ def test_thirty_seconds_of_the_quick_start_round_trip(tmp_path: Path) -> None:
     finally:
         code, _ = d.stop()
     assert code == 0, d.log.read_text()
-    player, endpoint = replay(orig, "--wait", "--rate", "2")
-    try:
-        again = tmp_path / "again.mcap"
-        assert answering(endpoint).returncode == 0
-        r = imud("record", "--connect", endpoint, "-o", str(again), "--duration", "20")
-        assert r.returncode == 0, r.stdout + r.stderr
-        _, err = player.communicate(timeout=60)
-    finally:
-        player.kill()
-    assert player.returncode == 0, err
+    again = tmp_path / "again.mcap"
+    replay_recorded(orig, again, 20.0)
     a, b = natives(orig), natives(again)
     assert set(a) == set(b) and len(a) == 5
     for device in a:
