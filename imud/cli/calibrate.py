@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import click
 import numpy as np
 
-from imud.cli.common import EXIT_USAGE, _connect, _fail, _new_file, _prefix
+from imud.cli.common import EXIT_USAGE, _connect, _fail, _new_file, _prefix, _recorded_device
 
 if TYPE_CHECKING:
     from imud.calib.file import CalibrationFile
@@ -987,14 +987,7 @@ def read_mcap_device(path: Path, name: str | None, as_json: bool) -> tuple[Any, 
         rec = open_recording(path)
         if rec.warning:
             click.echo(f"imud: {rec.warning}", err=True)
-        if name is None:
-            if len(rec.devices) != 1:
-                _fail(
-                    f"{path} holds {', '.join(sorted(rec.devices))}: give --device NAME",
-                    EXIT_USAGE,
-                    as_json,
-                )
-            name = next(iter(rec.devices))
+        name = _recorded_device(rec, name, as_json)
         # what a calibration is fitted to: the uncorrected stream where it was recorded
         d = device_data(rec, name, raw=name in rec.raw)
     except McapInputError as e:

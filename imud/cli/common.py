@@ -50,6 +50,19 @@ def _named(rec: Any) -> str:
     return str(rec.path)
 
 
+def _recorded_device(rec: Any, name: str | None, as_json: bool = False) -> str:
+    """The device of a recording a command works on: `name`, or the only one it holds; a name
+    it does not hold, or none of several, is a usage error naming what it holds."""
+    held = ", ".join(sorted(rec.devices))
+    if name is None:
+        if len(rec.devices) != 1:
+            _fail(f"{_named(rec)} holds {held}: give --device NAME", EXIT_USAGE, as_json)
+        return str(next(iter(rec.devices)))
+    if name not in rec.devices:
+        _fail(f"{_named(rec)} has no device {name!r} (it holds {held})", EXIT_USAGE, as_json)
+    return name
+
+
 def _new_file(path: Path, option: str, as_json: bool = False) -> None:
     """An output file the command will create: its directory there, no file of that name (what
     is already on disk, a recording most of all, is never overwritten)."""

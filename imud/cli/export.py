@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from imud.cli.common import EXIT_USAGE, _fail, _named, _new_file
+from imud.cli.common import EXIT_USAGE, _fail, _named, _new_file, _recorded_device
 
 
 @click.command()
@@ -29,12 +29,7 @@ def export(paths: tuple[str, ...], csv_path: str, device: str | None) -> None:
         path = _named(rec)
         if rec.warning:
             click.echo(f"imud: {rec.warning}", err=True)
-        if device is None:
-            if len(rec.devices) != 1:
-                _fail(
-                    f"{path} holds {', '.join(sorted(rec.devices))}: give --device NAME", EXIT_USAGE
-                )
-            device = next(iter(rec.devices))
+        device = _recorded_device(rec, device)
         d = to_csv(rec, device, out)
     except McapInputError as e:
         _fail(str(e), EXIT_USAGE)

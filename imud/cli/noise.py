@@ -13,7 +13,7 @@ from typing import Any
 import click
 import numpy as np
 
-from imud.cli.common import EXIT_USAGE, _fail
+from imud.cli.common import EXIT_USAGE, _fail, _recorded_device
 
 F64 = Any
 
@@ -73,14 +73,7 @@ def _mcap(path: Path, device: str | None, as_json: bool) -> tuple[float, int, It
         rec = open_recordings([path])
     except McapInputError as e:
         _fail(str(e), EXIT_USAGE, as_json)
-    if device is None:
-        if len(rec.devices) != 1:
-            _fail(f"{path} holds {', '.join(sorted(rec.devices))}: give --device NAME",
-                  EXIT_USAGE, as_json)  # fmt: skip
-        device = next(iter(rec.devices))
-    if device not in rec.devices:
-        _fail(f"{path} has no device {device!r} (it holds {', '.join(sorted(rec.devices))})",
-              EXIT_USAGE, as_json)  # fmt: skip
+    device = _recorded_device(rec, device, as_json)
     # a first pass for the count and the rate (the tau grid needs the record's length)
     n = 0
     first_t = last_t = None
