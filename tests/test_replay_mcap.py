@@ -443,3 +443,30 @@ def test_live_calibration_runs_against_a_replay(
     out = json.loads(r.stdout)
     gyro = np.concatenate([decode(p).gyro for p in natives(orig)["still0"]]).astype(np.float64)
     np.testing.assert_allclose(out["bias"], gyro.mean(axis=0), atol=5e-4)
+
+
+def test_noise_reads_a_device_of_the_recording(recording: tuple[DaemonProc, Path]) -> None:
+    """`imud noise FILE.mcap --device`: the Allan deviation of the samples the file holds,
+    allantools' on the same numbers (one stretch: the recording lost nothing)."""
+    import json
+
+    allantools = pytest.importorskip("allantools")
+    _, orig = recording
+    batches = [decode(p) for p in natives(orig)["still0"]]
+    assert all(b.lost_before == 0 for b in batches[1:])
+    r = imud("noise", str(orig), "--device", "still0", "--json")
+    assert r.returncode == 0, r.stdout + r.stderr
+    out = json.loads(r.stdout)
+    gyro = np.concatenate([b.gyro for b in batches]).astype(np.float64)
+    t = np.concatenate([b.t_ns for b in batches])
+    assert out["samples"] == gyro.shape[0] and out["stretches"] == 1
+    rate = (t.size - 1) / ((t[-1] - t[0]) / 1e9)
+    assert out["rate_hz"] == pytest.approx(rate)
+    full = np.array(out["stride"]) == 1
+    got = np.array(out["gyro_adev_rad_s"])[full]
+    for ax in range(3):
+        _, dev, _, _ = allantools.oadev(gyro[:, ax], rate=rate, data_type="freq",
+                                        taus=np.array(out["tau_s"])[full])  # fmt: skip
+        np.testing.assert_allclose(got[:, ax], dev, rtol=1e-9)
+    r = imud("noise", str(orig))
+    assert r.returncode == 2 and "give --device NAME" in r.stderr, r.stderr
