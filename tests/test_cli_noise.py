@@ -7,16 +7,22 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from imud.calib.csvio import CsvWriter
 
-allantools = pytest.importorskip("allantools")
+
+@pytest.fixture
+def allantools() -> object:
+    """allantools (the dev extra): an independent implementation, run on the same samples."""
+    return pytest.importorskip("allantools")
 
 
-def test_the_allan_deviation_of_a_csv_with_a_gap(tmp_path: Path) -> None:
+@pytest.mark.extra
+def test_the_allan_deviation_of_a_csv_with_a_gap(allantools: Any, tmp_path: Path) -> None:
     rng = np.random.default_rng(4)
     n, rate = 30_000, 400.0
     t = np.arange(n, dtype=np.int64) * 2_500_000 + 10**18

@@ -3,12 +3,18 @@ run here on the same samples) and against the physics of white noise."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
 from imud.noise.allan import EXACT_M, StreamingAllan, lags, oadev
 
-allantools = pytest.importorskip("allantools")
+
+@pytest.fixture
+def allantools() -> object:
+    """allantools (the dev extra): an independent implementation, run on the same samples."""
+    return pytest.importorskip("allantools")
 
 
 def _series(n: int, k: int, seed: int) -> np.ndarray:
@@ -18,8 +24,9 @@ def _series(n: int, k: int, seed: int) -> np.ndarray:
     return rng.normal(0.0, 0.01, (n, k)) + walk + np.array([0.02, -0.5, 9.81][:k])
 
 
+@pytest.mark.extra
 @pytest.mark.parametrize("chunk", [1, 997, 1 << 16])
-def test_every_tau_summed_in_full_equals_allantools(chunk: int) -> None:
+def test_every_tau_summed_in_full_equals_allantools(allantools: Any, chunk: int) -> None:
     n = 2_000 if chunk == 1 else 400_000
     y = _series(n, 3, seed=chunk)
     r = oadev(y, 800.0, chunk=chunk)
@@ -33,7 +40,8 @@ def test_every_tau_summed_in_full_equals_allantools(chunk: int) -> None:
         np.testing.assert_allclose(r.adev[full, ax], dev, rtol=1e-9, atol=0)
 
 
-def test_a_strided_tau_is_within_a_hundredth_of_the_full_sum() -> None:
+@pytest.mark.extra
+def test_a_strided_tau_is_within_a_hundredth_of_the_full_sum(allantools: Any) -> None:
     """Past EXACT_M every stride-th start index: exact terms, fewer of them; on 400 s of white
     noise it stays within 1 % of allantools' full overlapping sum (the estimates' own spread at
     those taus is 10-30 %)."""
@@ -92,7 +100,8 @@ def test_bad_samples_are_refused_with_a_reason() -> None:
     assert acc.result().tau_s.size == 0  # nothing fed: no tau yet
 
 
-def test_stretches_between_gaps_are_summed_and_no_term_spans_a_gap() -> None:
+@pytest.mark.extra
+def test_stretches_between_gaps_are_summed_and_no_term_spans_a_gap(allantools: Any) -> None:
     """Two stretches with a gap between: the result pools allantools' sums of each stretch
     (its deviation squared times its term count), as if each were analysed alone."""
     y = _series(60_000, 1, seed=8)

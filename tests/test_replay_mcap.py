@@ -445,6 +445,7 @@ def test_live_calibration_runs_against_a_replay(
     np.testing.assert_allclose(out["bias"], gyro.mean(axis=0), atol=5e-4)
 
 
+@pytest.mark.extra  # allantools (the dev extra)
 def test_noise_reads_a_device_of_the_recording(recording: tuple[DaemonProc, Path]) -> None:
     """`imud noise FILE.mcap --device`: the Allan deviation of the samples the file holds,
     allantools' on the same numbers (one stretch: the recording lost nothing)."""
