@@ -69,9 +69,6 @@ class Payloads:
             return iter(self.records)
         return (r.tobytes() for r in self.records)
 
-    def __len__(self) -> int:
-        return len(self.records)
-
 
 Emit = Callable[[Topic, Payloads], None]
 
