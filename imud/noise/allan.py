@@ -64,6 +64,9 @@ class AllanResult:
     terms: I64
     stride: I64
     n: int  # samples analysed
+    # the samples of each contiguous stretch (a gap starts the next): the equivalent degrees of
+    # freedom of each tau's estimate are summed over them (imud/noise/fit.py)
+    stretch_n: tuple[int, ...] = ()
 
 
 class StreamingAllan:
@@ -90,6 +93,7 @@ class StreamingAllan:
         self.n = 0  # samples seen, over every stretch
         self.stretches = 1  # runs of contiguous samples (a gap starts another)
         self.offset: F64 | None = None  # the rate taken out (the first chunk's mean)
+        self._done: list[int] = []  # the lengths of the stretches before the current one
         self._restart()
         self._keep = {
             int(v): 2 * int(self.m[self.s == v].max()) // int(v) for v in np.unique(self.s)
@@ -108,6 +112,7 @@ class StreamingAllan:
         """Samples are missing here: the next one starts a new stretch. The sums go on over
         every stretch; no term spans a gap (each term needs 2m + 1 contiguous samples)."""
         if self._seg:
+            self._done.append(self._seg)
             self._restart()
             self.stretches += 1
 
@@ -165,7 +170,8 @@ class StreamingAllan:
         m = self.m[ok]
         tau = m * self.tau0
         avar = self.sums[ok] / (2.0 * (tau**2)[:, None] * self.terms[ok][:, None])
-        return AllanResult(tau, m, np.sqrt(avar), self.terms[ok], self.s[ok], self.n)
+        lengths = (*self._done, self._seg) if self._seg else tuple(self._done)
+        return AllanResult(tau, m, np.sqrt(avar), self.terms[ok], self.s[ok], self.n, lengths)
 
 
 def oadev(y: F64, rate_hz: float, m: I64 | None = None, chunk: int = 1 << 16) -> AllanResult:
