@@ -78,8 +78,10 @@ def _norm_ppf(p: float) -> float:
     else:
         q = p - 0.5
         r = q * q
-        z = (((((a[0] * r + a[1]) * r + a[2]) * r + a[3]) * r + a[4]) * r + a[5]) * q / (
-            ((((b[0] * r + b[1]) * r + b[2]) * r + b[3]) * r + b[4]) * r + 1
+        z = (
+            (((((a[0] * r + a[1]) * r + a[2]) * r + a[3]) * r + a[4]) * r + a[5])
+            * q
+            / (((((b[0] * r + b[1]) * r + b[2]) * r + b[3]) * r + b[4]) * r + 1)
         )
     e = 0.5 * math.erfc(-z / math.sqrt(2)) - p
     return z - e * math.sqrt(2 * math.pi) * math.exp(z * z / 2)

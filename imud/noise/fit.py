@@ -162,7 +162,8 @@ def _nnls(a: F64, b: F64) -> F64:
                 best_cost = cost
                 best = np.zeros(k)
                 best[list(cols)] = x
-    return best / scale
+    out: F64 = best / scale
+    return out
 
 
 def start_index(tau: F64, adev: F64) -> int:
