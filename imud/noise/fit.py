@@ -20,8 +20,9 @@ both are fitted, and a term the data do not show comes out zero with an upper bo
 
 The only window is at the short end: a chip's low-pass filter makes the curve flatter than
 -1/2 over its first few samples (the filtered noise is correlated over them), which no term
-models. The fit starts where the local slope first reaches -0.49, times 3 (the filter's excess
-falls as 1/tau: there it is a third of what it was) unless the curve starts that steep.
+models. The fit starts where the local slope first reaches -0.49, times 10 (the filter's excess
+falls as 1/tau or a little slower: the simulated STIM300's is still 3 % at 20 filter time
+constants), unless the curve starts that steep.
 
 Intervals: the term's coefficient is the fitted one; its 95 % interval maps the chi-squared
 interval of the avar at one tau onto it, the other terms held at their fitted values there, at
@@ -57,7 +58,7 @@ READ_AT_S = {"Q": math.sqrt(3.0), "N": 1.0, "B": None, "K": 3.0, "R": math.sqrt(
 SLOPE = {"Q": -1.0, "N": -0.5, "B": 0.0, "K": 0.5, "R": 1.0}
 FILTER_SLOPE = -0.45  # a first slope flatter than this is a low-pass filter's
 START_SLOPE = -0.49  # and it is over where the local slope reaches this
-START_FACTOR = 3.0
+START_FACTOR = 10.0
 IRLS_ROUNDS = 6
 # the terms dropped when the data do not resolve them (N, B and K are always fitted, and come out
 # zero with an upper bound when absent): quantisation and ramp are rare in MEMS rate data and,
