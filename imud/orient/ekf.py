@@ -1,0 +1,569 @@
+"""Orientation from gyro, accelerometer and (optionally) magnetometer: a multiplicative error-state
+Kalman filter with gyro-bias states, run on NumPy batches.
+
+State: the orientation q (unit quaternion w, x, y, z; rotates body vectors into the world frame,
+ENU, z up) and the gyro bias b (rad/s). Error state (6): a small rotation dtheta in the *world*
+frame (q_true = exp(dtheta) q) and db = b_true - b. World-frame errors keep the heading error
+apart from the tilt errors: without a magnetometer the heading is unobservable and its
+variance grows without bound, and in world coordinates that growth never leaks into the tilt.
+
+Prediction runs at the full sample rate, a batch at a time. Within a chunk of m samples the
+rotation since the chunk began is a second-order rotation vector (the running sum of the
+increments plus half the running sum of prefix x increment, the first term of Bortz's coning
+correction), so the orientation of every sample is a few array operations on the chunk, not a
+Python loop. The world-frame error moves only through the bias, d(dtheta)/dt = -R db, so the
+covariance needs just sum(R_k dt) over the chunk.
+
+Correction runs at `update_hz`: the accelerometer samples of the interval are rotated into the
+world frame with the orientation of their own instants and averaged, so a platform turning
+during the interval still yields one gravity direction, and the noise of the average is the
+accelerometer's low-frequency density over the interval's length (correct even behind a
+low-pass filter that correlates the samples). Linear acceleration and vibration are not
+noise the datasheet knows: the interval's own scatter beyond the datasheet's and the departure
+of |a| from gravity inflate the measurement's variance, and an innovation beyond the
+chi-squared gate (2 dof) is rejected outright; after `recovery_s` of rejections the tilt is
+re-seeded from the accelerometer (a filter started while moving would otherwise never agree).
+The magnetometer corrects heading only (its horizontal direction, with the tilt's coupling
+through the dip), and a field whose magnitude or dip departs from the reference is rejected.
+While the device rests, a still window's mean gyro is a direct measurement of the bias
+(`zero_rate`), fed from the gyro-bias tracker's stillness tests: one bias estimate, not two.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+import numpy.typing as npt
+
+F64 = npt.NDArray[np.float64]
+
+CHI2_2DOF_999 = 13.816  # innovation gate: chi-squared 2 dof, upper tail 1e-3
+CHI2_1DOF_999 = 10.828
+CHI2_3DOF_999 = 16.266
+# how fast the linear acceleration's variance follows the innovations (per correction): about
+# twenty corrections, two seconds at the default rate
+ADAPT_GAIN = 0.05
+LINEAR_FLOOR = 0.001  # m/s^2: never assumed steadier than this
+LINEAR_CEILING = 10.0
+G0_GAIN = 0.003  # the reference |gravity| follows |a| over about thirty seconds
+LINEAR_STEADY = 0.05  # m/s^2: at most this much linear acceleration, the bias learns from gravity
+MAG_NORM_TOLERANCE = 0.1  # a field whose magnitude departs from the reference by more: disturbed
+INIT_TILT_SIGMA = math.radians(5.0)  # the first mean may hold linear acceleration: say so
+INIT_HEADING_SIGMA = math.radians(15.0)  # and the tilt's error shows in the heading, 2-3x
+_I2 = np.eye(2)
+_I3 = np.eye(3)
+N_STATES = 8  # world rotation error 3, gyro bias 3, horizontal linear acceleration 2
+_I8 = np.eye(N_STATES)
+
+
+class OrientState(StrEnum):
+    INITIALISING = "initialising"  # no accelerometer interval yet: no orientation
+    RUNNING = "running"
+    ACCEL_REJECTED = "accel_rejected"  # the last interval's gravity was rejected
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """The sensors' low-frequency (two-sided) noise densities and the bias's random walk: what
+    the covariance is made of. A datasheet's one-sided density d gives d / sqrt(2)."""
+
+    gyro: float  # rad/s/sqrt(Hz)
+    accel: float  # m/s^2/sqrt(Hz)
+    bias_walk: float = 2e-5  # rad/s/sqrt(s)
+    mag: float | None = None  # tesla per sample (its readings are few and held)
+
+
+@dataclass
+class Counters:
+    accel_updates: int = 0
+    accel_rejected: int = 0
+    mag_updates: int = 0
+    mag_rejected: int = 0
+    zero_rate_updates: int = 0
+    recoveries: int = 0
+
+
+def _quat_exp(phi: F64, th2: F64 | None = None) -> F64:
+    """exp of rotation vectors (m, 3) as unit quaternions (m, 4)."""
+    if th2 is None:
+        th2 = np.einsum("ij,ij->i", phi, phi)
+    th = np.sqrt(th2)
+    half = 0.5 * th
+    out = np.empty((phi.shape[0], 4))
+    out[:, 0] = np.cos(half)
+    # sin(th/2)/th -> 1/2 as th -> 0; at th = 0 exactly phi is 0 and so is the product
+    out[:, 1:] = phi * (np.sin(half) / (th + 1e-300))[:, None]
+    return out
+
+
+def _rotation_form() -> F64:
+    """C (9, 16): R(e).ravel() = C @ (e outer e).ravel() for a unit quaternion e, so sums of
+    rotation matrices (and of rotated vectors) over a chunk are sums of e outer e."""
+    c = np.zeros((3, 3, 4, 4))
+    w, x, y, z = 0, 1, 2, 3
+
+    def put(i: int, j: int, terms: list[tuple[float, int, int]]) -> None:
+        for k, a, b in terms:
+            c[i, j, a, b] += k / 2 if a != b else k
+            if a != b:
+                c[i, j, b, a] += k / 2
+
+    put(0, 0, [(1, w, w), (1, x, x), (-1, y, y), (-1, z, z)])
+    put(0, 1, [(2, x, y), (-2, w, z)])
+    put(0, 2, [(2, x, z), (2, w, y)])
+    put(1, 0, [(2, x, y), (2, w, z)])
+    put(1, 1, [(1, w, w), (-1, x, x), (1, y, y), (-1, z, z)])
+    put(1, 2, [(2, y, z), (-2, w, x)])
+    put(2, 0, [(2, x, z), (-2, w, y)])
+    put(2, 1, [(2, y, z), (2, w, x)])
+    put(2, 2, [(1, w, w), (-1, x, x), (-1, y, y), (1, z, z)])
+    return c.reshape(9, 16)
+
+
+_FORM = _rotation_form()
+# (3, 48): sum_k R(e_k) v_k = _FORM_V @ (sum_k (e_k outer e_k) outer v_k).ravel()
+_FORM_V = np.einsum("ijp->ipj", _FORM.reshape(3, 3, 16)).reshape(3, 48)
+
+
+def _quat_exp1(x: float, y: float, z: float) -> F64:
+    th = math.sqrt(x * x + y * y + z * z)
+    s = math.sin(0.5 * th) / th if th > 1e-12 else 0.5
+    return np.array([math.cos(0.5 * th), x * s, y * s, z * s])
+
+
+_WEIGHTS: dict[int, F64] = {}
+
+
+def _weights(m: int) -> F64:
+    """(2, m): ones and 0..m-1, for a chunk's sums and index-weighted sums in one product."""
+    w = _WEIGHTS.get(m)
+    if w is None:
+        w = np.vstack([np.ones(m), np.arange(m, dtype=np.float64)])
+        if len(_WEIGHTS) < 4096:
+            _WEIGHTS[m] = w
+    return w
+
+
+def _left(q: F64) -> F64:
+    """L(q): q x p = L(q) p for quaternions as columns."""
+    w, x, y, z = q.tolist()
+    return np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
+
+
+def rotation(q: F64) -> F64:
+    """The rotation matrix (body -> world) of a unit quaternion (4,)."""
+    w, x, y, z = q.tolist()
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def _skew(v: F64) -> F64:
+    x, y, z = v.tolist()
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def _inverse(s: F64) -> F64 | None:
+    """The inverse of a small symmetric positive matrix (closed form up to 2 x 2); None if
+    singular."""
+    if s.shape[0] == 1:
+        v = float(s[0, 0])
+        return None if not v > 0 else np.array([[1.0 / v]])
+    if s.shape[0] == 2:
+        (a, b), (c, d) = s.tolist()
+        det = a * d - b * c
+        if not det > 0:
+            return None
+        inv: F64 = np.array([[d, -b], [-c, a]]) / det
+        return inv
+    try:
+        out: F64 = np.asarray(np.linalg.inv(s), dtype=np.float64)
+    except np.linalg.LinAlgError:
+        return None
+    return out
+
+
+def tilt_quaternion(accel: F64) -> F64:
+    """The orientation with zero heading whose gravity matches a mean specific force (3,): the
+    shortest rotation taking the body's measured 'up' to the world's z."""
+    u = accel / np.linalg.norm(accel)
+    # rotation from u (body up) to z: axis u x z, angle acos(u . z)
+    w = 1.0 + u[2]
+    if w < 1e-9:  # upside down: a half turn about x
+        return np.array([0.0, 1.0, 0.0, 0.0])
+    q = np.array([w, u[1], -u[0], 0.0])
+    out: F64 = q / np.linalg.norm(q)
+    return out
+
+
+@dataclass
+class _Interval:
+    """What one correction interval has gathered so far. Rotation matrices are summed as sums of
+    q outer q (`_FORM` turns them into matrices at the correction), so a chunk adds two small
+    products and rotates nothing."""
+
+    n: int = 0  # samples with a valid accelerometer reading
+    steps: int = 0  # samples integrated
+    t: float = 0.0  # seconds integrated
+    qq: F64 = field(default_factory=lambda: np.zeros(16))  # sum q outer q
+    kqq: F64 = field(default_factory=lambda: np.zeros(16))  # sum (j - 1) q outer q
+    qqa: F64 = field(default_factory=lambda: np.zeros((16, 3)))  # sum (q outer q) outer a
+    m_sum: F64 = field(default_factory=lambda: np.zeros(3))
+    m_n: int = 0
+
+
+class OrientationFilter:
+    """One device's filter. `step` takes a batch and returns its orientation and covariance."""
+
+    def __init__(
+        self,
+        noise: NoiseModel,
+        update_hz: float = 10.0,
+        bias_sigma: float = 0.01,
+        recovery_s: float = 10.0,
+        use_mag: bool = True,
+        declination_rad: float = 0.0,
+        linear_sigma: float = 0.3,
+        linear_time_s: float = 1.0,
+        init_s: float = 1.0,
+    ) -> None:
+        self.noise = noise
+        self.update_s = 1.0 / update_hz
+        self.init_s = init_s
+        self.bias_sigma = bias_sigma
+        self.recovery_s = recovery_s
+        self.use_mag = use_mag and noise.mag is not None
+        self.declination = declination_rad
+        # the platform's own horizontal acceleration, a first-order Gauss-Markov process: what
+        # lets slow linear acceleration be told from tilt by its time scale, not taken for it
+        self.linear_sigma = linear_sigma  # the prior before any innovation is seen
+        # assumed steady at first (the innovations show otherwise within a few corrections)
+        self.linear_var = LINEAR_FLOOR**2
+        self.linear_time_s = linear_time_s
+        self._q_density = np.array([noise.gyro**2] * 3 + [noise.bias_walk**2] * 3 + [0.0, 0.0])
+        self.q = np.array([1.0, 0.0, 0.0, 0.0])
+        self.b = np.zeros(3)
+        self.a = np.zeros(2)  # world-horizontal linear acceleration, m/s^2
+        self.P = np.zeros((N_STATES, N_STATES))
+        self.state = OrientState.INITIALISING
+        self.counters = Counters()
+        self.heading_known = False  # a magnetometer has set the heading
+        self._g0: float | None = None  # the reference |gravity|, m/s^2
+        self._g0_n = 0  # intervals averaged into it
+        self._mag_ref: float | None = None  # |B| at the start, T
+        self._rejected_s = 0.0
+        self._iv = _Interval()
+        self._pending_zero_rate: list[tuple[F64, F64]] = []
+
+    # --- inputs ---------------------------------------------------------------------------
+    def zero_rate(self, gyro_mean: F64, variance: F64) -> None:
+        """A still window's mean gyro (rad/s, the same stream `step` takes) and the variance of
+        that mean per axis: applied at the next correction."""
+        self._pending_zero_rate.append((np.asarray(gyro_mean, float), np.asarray(variance, float)))
+
+    def step(
+        self, gyro: F64, accel: F64 | None, dt: float, mag: F64 | None = None
+    ) -> tuple[F64, F64]:
+        """Integrate a batch (n, 3) sampled every `dt` seconds; returns the orientation (n, 4)
+        and the world-frame orientation error covariance (n, 6: xx, xy, xz, yy, yz, zz, rad^2)
+        of each sample. NaN before the filter has seen gravity."""
+        n = gyro.shape[0]
+        q_out = np.empty((n, 4))
+        c_out = np.empty((n, 6))
+        if n == 0:
+            return q_out, c_out
+        i = 0
+        if self.state is OrientState.INITIALISING:
+            i = self._initialise(gyro, accel, mag, dt, q_out, c_out)
+        per = max(1, round(self.update_s / dt))
+        while i < n:
+            # a batch is one chunk unless it spans several correction intervals: the fixed cost
+            # of a chunk (a few dozen array operations) is what bounds the cost per sample
+            left = per - self._iv.steps
+            j = n if n - i <= left + per else i + max(left, 1)
+            self._chunk(gyro[i:j], None if accel is None else accel[i:j], dt, q_out[i:j])
+            if mag is not None and self.use_mag:
+                self._mag_chunk(mag[i:j], q_out[i:j])
+            if self._iv.steps >= per:
+                self._correct()
+            c_out[i:j] = self._cov6()
+            i = j
+        return q_out, c_out
+
+    # --- prediction ------------------------------------------------------------------------
+    def _initialise(
+        self, gyro: F64, accel: F64 | None, mag: F64 | None, dt: float, q_out: F64, c_out: F64
+    ) -> int:
+        """Integrate from an arbitrary start for `init_s` (the gyro keeps track of any motion
+        meanwhile), then turn the world so the interval's mean specific force is up and (with a
+        magnetometer) its mean field points north. Returns the samples consumed; their
+        orientation is NaN."""
+        n = int(gyro.shape[0])
+        need = max(1, round(self.init_s / dt)) - self._iv.steps
+        j = int(min(n, need))
+        q_out[:j] = np.nan
+        c_out[:j] = np.nan
+        self._chunk(gyro[:j], None if accel is None else accel[:j], dt, np.empty((j, 4)))
+        if mag is not None and self.use_mag:
+            self._mag_chunk(mag[:j], np.broadcast_to(self.q, (j, 4)))
+        iv = self._iv
+        if iv.steps * dt + 1e-12 < self.init_s:
+            return n
+        if iv.n == 0:  # no accelerometer yet: keep waiting
+            self._iv = _Interval()
+            self.q = np.array([1.0, 0.0, 0.0, 0.0])
+            return j
+        self._iv = _Interval()
+        mean = _FORM_V @ iv.qqa.ravel() / iv.n
+        g = float(np.linalg.norm(mean))
+        if not g > 0.0:
+            self.q = np.array([1.0, 0.0, 0.0, 0.0])
+            return j
+        self.q = _left(tilt_quaternion(mean)) @ self.q
+        self._g0, self._g0_n = g, 1
+        span = iv.t * iv.n / iv.steps
+        tilt_var = self.noise.accel**2 / span / g**2 + INIT_TILT_SIGMA**2
+        self.P = np.diag(
+            [tilt_var, tilt_var, 0.0] + [self.bias_sigma**2] * 3 + [self.linear_sigma**2] * 2
+        )
+        if iv.m_n and self.use_mag:
+            m = rotation(self.q) @ (iv.m_sum / iv.m_n)
+            bh = math.hypot(float(m[0]), float(m[1]))
+            if bh > 0.0:
+                self._rotate_world(np.array([0.0, 0.0, self._north(m)]))
+                self._mag_ref = float(np.linalg.norm(m))
+                self.heading_known = True
+                self.P[2, 2] = INIT_HEADING_SIGMA**2
+        self.state = OrientState.RUNNING
+        return j
+
+    def _north(self, m: F64) -> float:
+        """The heading error a world-frame field implies: its horizontal angle from north (+y,
+        less the declination), wrapped."""
+        north = math.atan2(float(m[0]), float(m[1])) - self.declination
+        return (north + math.pi) % (2 * math.pi) - math.pi
+
+    def _seed_tilt(self, mean: F64, span_s: float) -> None:
+        yaw = 0.0
+        if self.state is not OrientState.INITIALISING:
+            r = rotation(self.q)
+            yaw = math.atan2(r[1, 0], r[0, 0])
+        q = tilt_quaternion(mean)
+        if yaw:
+            q = _left(np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])) @ q
+        self.q = q
+        g = float(np.linalg.norm(mean))
+        self._g0 = g if self._g0 is None else self._g0
+        var = self.noise.accel**2 / max(span_s, 1e-3) / g**2 + math.radians(1.0) ** 2
+        self.P[:3, :] = 0.0
+        self.P[:, :3] = 0.0
+        self.P[0, 0] = self.P[1, 1] = var
+        self.a = np.zeros(2)
+        self.P[6:, :] = 0.0
+        self.P[:, 6:] = 0.0
+        self.P[6:, 6:] = np.eye(2) * self.linear_sigma**2
+        self.P[2, 2] = 0.0 if not self.heading_known else math.radians(1.0) ** 2
+
+    def _chunk(self, gyro: F64, accel: F64 | None, dt: float, q_out: F64) -> None:
+        m = gyro.shape[0]
+        theta = (gyro - self.b) * dt
+        c = np.cumsum(theta, axis=0)
+        x, y, z = c[-1].tolist()
+        if not math.isfinite(x + y + z):  # an invalid gyro sample: no turn during it
+            theta = np.where(np.isfinite(theta), theta, 0.0)
+            c = np.cumsum(theta, axis=0)
+            x, y, z = c[-1].tolist()
+        th2 = np.einsum("ij,ij->i", c, c)
+        e = _quat_exp(c, th2)  # each sample's rotation since the chunk began (first order)
+        left = _left(self.q)
+        q = e @ left.T
+        q_out[:] = q
+        iv = self._iv
+        q2 = (q[:, :, None] * q[:, None, :]).reshape(m, 16)
+        sums = _weights(m) @ q2
+        iv.qq += sums[0]
+        iv.kqq += sums[1] + iv.steps * sums[0]
+        if accel is not None:
+            if np.isnan(accel[:, 0]).any():
+                ok = ~np.isnan(accel[:, 0])
+                accel, q2 = accel[ok], q2[ok]
+            k = accel.shape[0]
+            if k:
+                iv.qqa += q2.T @ accel
+                iv.n += k
+        iv.steps += m
+        iv.t += m * dt
+        # the chunk's end: its rotation vector to second order (Bortz's coning term)
+        mm = ((c - theta).T @ theta).tolist()
+        x += 0.5 * (mm[1][2] - mm[2][1])
+        y += 0.5 * (mm[2][0] - mm[0][2])
+        z += 0.5 * (mm[0][1] - mm[1][0])
+        qn = left @ _quat_exp1(x, y, z)
+        self.q = qn / math.sqrt(float(qn @ qn))
+
+    def _propagate(self, iv: _Interval) -> None:
+        """The covariance over the interval: d(dtheta)/dt = -R db, white gyro noise, the bias's
+        random walk."""
+        a1 = (_FORM @ iv.qq).reshape(3, 3) * (iv.t / max(iv.steps, 1))
+        rho = math.exp(-iv.t / self.linear_time_s)
+        phi = _I8.copy()
+        phi[:3, 3:6] = -a1
+        phi[6, 6] = phi[7, 7] = rho
+        q = self._q_density * iv.t
+        q[6] = q[7] = self.linear_var * (1.0 - rho * rho)
+        self.P = phi @ self.P @ phi.T + np.diag(q)
+        self.a = self.a * rho
+
+    def _mag_chunk(self, mag: F64, q: F64) -> None:
+        ok = np.isfinite(mag).all(axis=1)
+        if not ok.any():
+            return
+        # the magnetometer is slow and coarse: each reading rotated by its sample's orientation
+        r = rotation(q[ok][len(q[ok]) // 2])
+        self._iv.m_sum += r @ mag[ok].sum(axis=0)
+        self._iv.m_n += int(ok.sum())
+
+    def _cov6(self) -> F64:
+        p = self.P
+        return np.array([p[0, 0], p[0, 1], p[0, 2], p[1, 1], p[1, 2], p[2, 2]])
+
+    # --- correction ------------------------------------------------------------------------
+    def _correct(self) -> None:
+        iv = self._iv
+        self._iv = _Interval()
+        self._propagate(iv)
+        for mean, var in self._pending_zero_rate:
+            h = np.zeros((3, N_STATES))
+            h[:, 3:6] = _I3
+            self._update(h, mean - self.b, np.diag(var), 3)
+            self.counters.zero_rate_updates += 1
+        self._pending_zero_rate = []
+        if iv.n:
+            self._accel_update(iv)
+        if iv.m_n and self.use_mag:
+            self._mag_update(iv)
+
+    def _accel_update(self, iv: _Interval) -> None:
+        mean = _FORM_V @ iv.qqa.ravel() / iv.n
+        g = float(np.linalg.norm(mean))
+        g0 = self._g0 if self._g0 is not None else g
+        t = iv.n * iv.t / max(iv.steps, 1)
+        # the datasheet's white noise averaged over the interval, what the innovations have
+        # shown beyond it lately (vibration the average did not cancel, linear acceleration),
+        # and |a| away from gravity (linear acceleration of that size, now)
+        var = self.noise.accel**2 / t + (g - g0) ** 2
+        gm = np.array([[0.0, -g, 0.0], [g, 0.0, 0.0]])
+        dt = iv.t / max(iv.steps, 1)
+        a2 = (_FORM @ iv.kqq).reshape(3, 3) * dt
+        h = np.hstack([gm, gm @ (a2 / iv.n), _I2])
+        y = mean[:2] - self.a
+        # covariance matching: the innovations' spread beyond what the filter predicts is the
+        # platform's linear acceleration (or vibration the average did not cancel); its
+        # variance follows, within [LINEAR_FLOOR, LINEAR_CEILING], rejected intervals included
+        hph = h @ self.P @ h.T
+        excess = 0.5 * float(y @ y - hph[0, 0] - hph[1, 1]) - var
+        lv = self.linear_var + ADAPT_GAIN * excess
+        self.linear_var = min(max(lv, LINEAR_FLOOR**2), LINEAR_CEILING**2)
+        # the reference follows |a| slowly whatever the motion (linear acceleration averages
+        # out over tens of seconds; a first interval may have caught a vibration's crest)
+        self._g0_n += 1
+        self._g0 = g0 + max(G0_GAIN, 1.0 / self._g0_n) * (g - g0)  # a plain mean at first
+        # the bias about the vertical is learned from gravity only while the platform is steady:
+        # it shows in gravity only through the body's changing lean, faintly, and under linear
+        # acceleration the innovations are systematic for seconds: that faint coupling would
+        # integrate them into a wrong bias, and the heading with it
+        steady = self.linear_var <= LINEAR_STEADY**2
+        if self._update(h, y, _I2 * var, 2, learn_bias=steady):
+            self.counters.accel_updates += 1
+            self._rejected_s = 0.0
+            self.state = OrientState.RUNNING
+            return
+        self.counters.accel_rejected += 1
+        self.state = OrientState.ACCEL_REJECTED
+        self._rejected_s += iv.t
+        if self._rejected_s >= self.recovery_s:
+            # never agreeing for this long: the tilt is wrong, not the accelerometer
+            self._seed_tilt(mean, iv.t)
+            self.counters.recoveries += 1
+            self._rejected_s = 0.0
+
+    def _mag_update(self, iv: _Interval) -> None:
+        m = iv.m_sum / iv.m_n
+        bh = math.hypot(float(m[0]), float(m[1]))
+        norm = float(np.linalg.norm(m))
+        if bh <= 0.0 or norm <= 0.0:
+            return
+        if not self.heading_known:  # the first field seen (it came after the start)
+            self._rotate_world(np.array([0.0, 0.0, self._north(m)]))
+            self.P[2, :] = 0.0
+            self.P[:, 2] = 0.0
+            self.P[2, 2] = INIT_HEADING_SIGMA**2
+            self._mag_ref = norm
+            self.heading_known = True
+            return
+        ref = self._mag_ref if self._mag_ref is not None else norm
+        # a disturbed field (iron nearby, currents) changes its magnitude; its dip seen through
+        # the estimated tilt would also change with the tilt's own error, so only the
+        # magnitude is checked here and the innovation gate does the rest
+        if abs(norm - ref) > MAG_NORM_TOLERANCE * ref:
+            self.counters.mag_rejected += 1
+            return
+        north = self._north(m)
+        assert self.noise.mag is not None
+        var = self.noise.mag**2 / bh**2  # held readings: not averaged down by the repeats
+        h = np.zeros((1, N_STATES))
+        h[0, 1] = -float(m[2]) / bh
+        h[0, 2] = 1.0
+        if self._update(h, np.array([north]), np.array([[var]]), 1):
+            self.counters.mag_updates += 1
+        else:
+            self.counters.mag_rejected += 1
+
+    def _update(self, h: F64, y: F64, r: F64, dof: int, learn_bias: bool = True) -> bool:
+        """A Kalman update with the chi-squared gate; False (and nothing changed) if rejected.
+        `learn_bias` False: the bias states are considered, not estimated (a Schmidt update:
+        their gain is zero, the covariance stays consistent)."""
+        P = self.P
+        ph = P @ h.T
+        s = h @ ph + r
+        s_inv = _inverse(s)
+        if s_inv is None:
+            return False
+        nis = float(y @ s_inv @ y)
+        gate = CHI2_2DOF_999 if dof == 2 else CHI2_1DOF_999 if dof == 1 else CHI2_3DOF_999
+        if not nis <= gate:
+            return False
+        k = ph @ s_inv
+        if learn_bias:
+            p = P - k @ ph.T
+        else:
+            k[3:6] = 0.0
+            ikh = _I8 - k @ h
+            p = ikh @ P @ ikh.T + k @ r @ k.T
+        dx = k @ y
+        self.P = 0.5 * (p + p.T)
+        self._rotate_world(dx[:3])
+        self.b = self.b + dx[3:6]
+        self.a = self.a + dx[6:]
+        return True
+
+    def _body_up(self) -> F64:
+        """The world's vertical in the body frame (the third row of R)."""
+        w, x, y, z = self.q.tolist()
+        return np.array([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)])
+
+    def _rotate_world(self, dtheta: F64) -> None:
+        e = _quat_exp1(*dtheta.tolist())
+        q = _left(e) @ self.q
+        self.q = q / math.sqrt(float(q @ q))
+
+    @property
+    def orientation(self) -> F64:
+        return self.q.copy()
