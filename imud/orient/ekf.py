@@ -230,7 +230,6 @@ class OrientationFilter:
         recovery_s: float = 10.0,
         use_mag: bool = True,
         declination_rad: float = 0.0,
-        linear_sigma: float = 0.3,
         linear_time_s: float = 1.0,
         init_s: float = 1.0,
     ) -> None:
@@ -243,7 +242,6 @@ class OrientationFilter:
         self.declination = declination_rad
         # the platform's own horizontal acceleration, a first-order Gauss-Markov process: what
         # lets slow linear acceleration be told from tilt by its time scale, not taken for it
-        self.linear_sigma = linear_sigma  # the prior before any innovation is seen
         # assumed steady at first (the innovations show otherwise within a few corrections)
         self.linear_var = LINEAR_FLOOR**2
         self.linear_time_s = linear_time_s
@@ -257,6 +255,7 @@ class OrientationFilter:
         self.heading_known = False  # a magnetometer has set the heading
         self._g0: float | None = None  # the reference |gravity|, m/s^2
         self._g0_n = 0  # intervals averaged into it
+        self._adapt_n = 0  # corrections the linear acceleration's variance has followed
         self._mag_ref: float | None = None  # |B| at the start, T
         self._rejected_s = 0.0
         self._iv = _Interval()
@@ -331,7 +330,7 @@ class OrientationFilter:
         span = iv.t * iv.n / iv.steps
         tilt_var = self.noise.accel**2 / span / g**2 + INIT_TILT_SIGMA**2
         self.P = np.diag(
-            [tilt_var, tilt_var, 0.0] + [self.bias_sigma**2] * 3 + [self.linear_sigma**2] * 2
+            [tilt_var, tilt_var, 0.0] + [self.bias_sigma**2] * 3 + [self.linear_var] * 2
         )
         if iv.m_n and self.use_mag:
             m = rotation(self.q) @ (iv.m_sum / iv.m_n)
@@ -368,7 +367,7 @@ class OrientationFilter:
         self.a = np.zeros(2)
         self.P[6:, :] = 0.0
         self.P[:, 6:] = 0.0
-        self.P[6:, 6:] = np.eye(2) * self.linear_sigma**2
+        self.P[6:, 6:] = np.eye(2) * self.linear_var
         self.P[2, 2] = 0.0 if not self.heading_known else math.radians(1.0) ** 2
 
     def _chunk(self, gyro: F64, accel: F64 | None, dt: float, q_out: F64) -> None:
@@ -469,7 +468,8 @@ class OrientationFilter:
         # variance follows, within [LINEAR_FLOOR, LINEAR_CEILING], rejected intervals included
         hph = h @ self.P @ h.T
         excess = 0.5 * float(y @ y - hph[0, 0] - hph[1, 1]) - var
-        lv = self.linear_var + ADAPT_GAIN * excess
+        self._adapt_n += 1
+        lv = self.linear_var + max(ADAPT_GAIN, 1.0 / self._adapt_n) * excess  # a mean at first
         self.linear_var = min(max(lv, LINEAR_FLOOR**2), LINEAR_CEILING**2)
         # the reference follows |a| slowly whatever the motion (linear acceleration averages
         # out over tens of seconds; a first interval may have caught a vibration's crest)
@@ -544,7 +544,10 @@ class OrientationFilter:
         if learn_bias:
             p = P - k @ ph.T
         else:
-            k[3:6] = 0.0
+            # the bias along the body's vertical is not learned; the horizontal components
+            # show in the tilt itself, through the linear acceleration's state, and still are
+            u = self._body_up()
+            k[3:6] -= np.outer(u, u @ k[3:6])
             ikh = _I8 - k @ h
             p = ikh @ P @ ikh.T + k @ r @ k.T
         dx = k @ y
