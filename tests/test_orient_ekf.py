@@ -127,6 +127,7 @@ def test_magnetometer_holds_heading_and_rejects_a_disturbed_field() -> None:
     s = dataclasses.replace(s, mag=field, mag_sigma=0.3e-6)
     q, _, f = run(s)
     k = 5000
+    assert f.counters.mag_updates >= 400 and f.counters.mag_rejected == 0
     # heading against north: the world error's vertical component, no alignment
     assert np.degrees(np.abs(M.world_error(q, s.truth)[k:, 2])).max() < 1.0
     # a steel structure nearby for 10 s: +30 uT along the body's x
