@@ -26,6 +26,8 @@ class Channel(IntFlag):
     DELTA_ANGLE = 1 << 7  # rotation since the previous sample, rad, (N, 3)
     DELTA_VELOCITY = 1 << 8  # velocity change since the previous sample, m/s, (N, 3)
     INCLINATION = 1 << 9  # inclinometer specific force, m/s^2, (N, 3)
+    # the orientation's error covariance, world frame: xx, xy, xz, yy, yz, zz, rad^2, (N, 6)
+    ORIENTATION_COVARIANCE = 1 << 10
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,6 +48,7 @@ CHANNELS: dict[Channel, ChannelInfo] = {
     Channel.DELTA_ANGLE: ChannelInfo("delta_angle", 3, "rad"),
     Channel.DELTA_VELOCITY: ChannelInfo("delta_velocity", 3, "m/s"),
     Channel.INCLINATION: ChannelInfo("inclination", 3, "m/s^2"),
+    Channel.ORIENTATION_COVARIANCE: ChannelInfo("orientation_covariance", 6, "rad^2"),
 }
 assert list(CHANNELS) == sorted(CHANNELS), "wire order is bit order"
 # (channel, its bit as a plain int, width) in wire order: hot paths test bits on ints, since an
@@ -79,6 +82,7 @@ class SampleFlag(IntFlag):
     DELTA_ANGLE_INVALID = Channel.DELTA_ANGLE
     DELTA_VELOCITY_INVALID = Channel.DELTA_VELOCITY
     INCLINATION_INVALID = Channel.INCLINATION
+    ORIENTATION_COVARIANCE_INVALID = Channel.ORIENTATION_COVARIANCE
     ACCEL_SATURATED = 1 << 16
     GYRO_SATURATED = 1 << 17
     MAG_SATURATED = 1 << 18

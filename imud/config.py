@@ -21,6 +21,7 @@ from pydantic import (
 )
 
 from imud import registry
+from imud.channels import Channel
 from imud.chips.api import DeviceBase
 from imud.configerrors import explain
 from imud.errors import ConfigError
@@ -240,6 +241,20 @@ class ImudConfig(BaseModel):
                 )
             if d.bus.simulated and d.sim is None:
                 d.sim = _default_sim()
+            channels = registry.CHIPS[d.chip].channels
+            if d.orientation.enabled:
+                if channels & Channel.ORIENTATION:
+                    raise ValueError(
+                        f"device[{i}] {d.name!r}: orientation.enabled: a {d.chip} computes its "
+                        "own orientation (its fusion output); imud's filter would publish a "
+                        "second one on the same channel: remove [device.orientation] or set "
+                        "enabled = false"
+                    )
+                if not channels & Channel.GYRO or not channels & Channel.ACCEL:
+                    raise ValueError(
+                        f"device[{i}] {d.name!r}: orientation.enabled needs a gyro and an "
+                        f"accelerometer; a {d.chip} does not publish both"
+                    )
             rate = d.ros2.rate_hz
             if rate is not None and rate > d.odr_hz:
                 raise ValueError(

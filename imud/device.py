@@ -57,7 +57,7 @@ def initial_status(cfg: DeviceBase) -> DeviceStatus:
         chip=cfg.chip,
         bus=" + ".join(describe(b) for b in cfg.die_buses()),
         odr_hz=float(cfg.odr_hz),
-        channels=[CHANNELS[c].key for c in channels_in(spec.channels)],
+        channels=[CHANNELS[c].key for c in channels_in(registry.device_channels(cfg))],
         truth=cfg.publishes_truth,
         chip_counters=dict.fromkeys(spec.counters, 0),
         gyro_bias_tracking=GyroBiasTracker(tracking).status() if tracking.enabled else None,
@@ -159,6 +159,8 @@ class DeviceRunner:
             self.pipeline.cal = model
             if self.pipeline.tracker is not None:
                 self.pipeline.tracker.reset()
+            if self.pipeline.orient is not None:
+                self.pipeline.orient.reset_bias()
 
     def want_raw(self, on: bool) -> None:
         """Someone subscribes to (or left) `<prefix>/<device>/raw`: compute it only then."""
@@ -382,6 +384,8 @@ class DeviceRunner:
             st.chip_rate_hz = round(self.pipeline.rate_hz, 3)
             if self.pipeline.tracker is not None:
                 st.gyro_bias_tracking = self.pipeline.tracker.status()
+            if self.pipeline.orient is not None:
+                st.orientation = self.pipeline.orient.status()
         if self.driver is not None:
             c = self.driver.counters
             st.fifo_overflows, st.fifo_resets = c.fifo_overflows, c.fifo_resets

@@ -6,12 +6,14 @@ raw channels --stamp (the sample-clock fit, per die)--> t_ns, seq
              --flags (invalid, saturated, alarm)--> per-sample flags
              --to_si (NaN where invalid)--> SI (the `raw` stream, on demand)
              --calibrate (temperature, bias, matrix; imud.calib.model)--> corrected
+             --orient (orientation and its covariance, when enabled; imud.orient.stage)
              --track (gyro bias re-learned while still, when enabled; imud.calib.track)
              --> SampleBatch
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +25,7 @@ from imud.calib.model import CalibrationModel, apply, fill_temperature
 from imud.calib.track import GyroBiasTracker
 from imud.channels import INVALID_MASK, SATURATED, Channel, SampleFlag
 from imud.chips.api import DeviceBase, Driver, FifoRead, RawBatch, Stamped
+from imud.orient.stage import OrientationStage, noise_model
 from imud.timestamps import SampleClock
 from imud.wire import FLAG_CALIBRATED, FLAG_GAP_UNCERTAIN, FLAG_RESYNC
 
@@ -91,6 +94,7 @@ def to_si(raw: RawBatch) -> dict[Channel, F64]:
 
 
 _OUTSIDE = np.uint32(SampleFlag.TEMPERATURE_OUTSIDE_CALIBRATION)
+_NO_ORIENTATION = np.uint32(Channel.ORIENTATION | Channel.ORIENTATION_COVARIANCE)
 
 
 def correct(
@@ -178,8 +182,10 @@ class Pipeline:
         tracker: GyroBiasTracker | None = None,
         group_delay_ns: int = 0,
         dies: DieClocks | None = None,
+        orient: OrientationStage | None = None,
     ) -> None:
         self.clock = clock
+        self.orient = orient
         self.dies = dies
         # the driver's configured filter delay at the nominal clock: every stamp is moved back by
         # it, scaled to the chip's fitted clock (a filter's delay is so many of its own samples)
@@ -276,6 +282,15 @@ class Pipeline:
                 flags = np.zeros(raw.n, dtype=np.uint32) if flags is None else flags
                 flags[clamped] |= _OUTSIDE
                 outside = int(np.count_nonzero(clamped))
+        if self.orient is not None:
+            channels = self.orient.run(
+                channels, (st.period_ns or self.period_ns) / 1e9, st.lost_before
+            )
+            q = channels.get(Channel.ORIENTATION)
+            if q is not None and q.shape[0] and math.isnan(q[0, 0]):  # before its start
+                unset = np.isnan(q[:, 0])
+                flags = np.zeros(raw.n, dtype=np.uint32) if flags is None else flags
+                flags[unset] |= _NO_ORIENTATION
         if self.tracker is not None:
             channels = track(self.tracker, channels, (st.period_ns or self.period_ns) / 1e9)
         batch_flags = (
@@ -319,12 +334,24 @@ def build_pipeline(
         others = max(p for i, p in enumerate(periods) if i != spec.time_base)
         wait = max(100e6, 3 * others + 4 * driver.poll_interval_ns)
         dies = DieClocks(clocks, Aligner(spec.time_base, len(periods), int(wait)))
+    tracker = GyroBiasTracker(tracking) if tracking.enabled else None
+    orient = None
+    if cfg.orientation.enabled:
+        figures = spec.noise(cfg) if spec.noise is not None else None
+        noise = noise_model(
+            None if figures is None else figures.gyro_density,
+            None if figures is None else figures.accel_density,
+            None if figures is None else figures.mag_sigma_t,
+            cfg.orientation.gyro_bias_walk,
+        )
+        orient = OrientationStage(cfg.orientation, noise, tracker, tracking)
     return Pipeline(
         clock,
         calibration,
         epoch_offset_ns,
         resume,
-        GyroBiasTracker(tracking) if tracking.enabled else None,
+        tracker,
         group_delay_ns=driver.group_delay_ns,
         dies=dies,
+        orient=orient,
     )

@@ -13,7 +13,8 @@ import logging
 from importlib.metadata import EntryPoint, entry_points
 from typing import Any, get_args
 
-from imud.chips.api import ChipSpec
+from imud.channels import Channel
+from imud.chips.api import ChipSpec, DeviceBase
 
 log = logging.getLogger("imud.registry")
 
@@ -32,6 +33,15 @@ def _check(spec: ChipSpec[Any]) -> None:
     chip = fields.get("chip")
     if chip is None or get_args(chip.annotation) != (spec.name,):
         raise TypeError(f"{spec.name}: its config model must declare chip: Literal[{spec.name!r}]")
+
+
+def device_channels(cfg: DeviceBase) -> Channel:
+    """What a device publishes: its chip's channels, and the orientation's when imud's filter
+    runs on it."""
+    channels = Channel(CHIPS[cfg.chip].channels)
+    if cfg.orientation.enabled:
+        channels |= Channel.ORIENTATION | Channel.ORIENTATION_COVARIANCE
+    return channels
 
 
 def register(spec: ChipSpec[Any]) -> None:

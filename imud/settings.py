@@ -36,6 +36,45 @@ class GyroBiasTracking(BaseModel):
     )
 
 
+class Orientation(BaseModel):
+    """`[device.orientation]`: imud's orientation filter (imud.orient), off unless
+    `enabled = true`. It publishes the `orientation` and `orientation_covariance` channels and
+    the ROS 2 `imu/data` topic; docs/orientation.md."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    enabled: bool = False
+    update_hz: float = Field(
+        10.0,
+        gt=0.0,
+        le=200.0,
+        description="how often gravity (and the field) correct it; the gyro is integrated at "
+        "every sample whatever this is",
+    )
+    magnetometer: bool = Field(
+        True, description="correct the heading with the chip's magnetometer, when it has one"
+    )
+    declination_deg: float = Field(
+        0.0, ge=-180.0, le=180.0, description="magnetic north's angle east of true north"
+    )
+    gyro_bias_sigma_rad_s: float = Field(
+        0.01,
+        gt=0.0,
+        le=1.0,
+        description="how far the gyro bias may be from zero at the start, after calibration "
+        "(raise it for an uncalibrated chip: its datasheet's zero-rate offset)",
+    )
+    gyro_bias_walk: float = Field(
+        2e-5, ge=0.0, description="how fast the bias wanders, rad/s per sqrt(s)"
+    )
+    start_s: float = Field(
+        1.0,
+        gt=0.0,
+        le=60.0,
+        description="seconds of samples the start averages for its first gravity (and field)",
+    )
+
+
 class DeviceRos2(BaseModel):
     """`[device.ros2]`: this device's ROS 2 topics, when `[ros2]` is on. Unset fields take
     `[ros2]`'s."""

@@ -75,6 +75,8 @@ class DeviceStatus:
     raw_subscribed: bool = False
     # None: off; else {state, bias_rad_s, windows, learned_windows} (imud.calib.track)
     gyro_bias_tracking: dict[str, Any] | None = None
+    # None: off; else {state, bias_rad_s, heading, counters} (imud.orient.stage)
+    orientation: dict[str, Any] | None = None
     last_error: str | None = None
     last_error_at: float | None = None  # wall-clock seconds
     chip_status: dict[str, Any] = field(default_factory=dict)  # the driver's own health

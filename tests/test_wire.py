@@ -7,7 +7,7 @@ then the UTF-8 device name zero-padded to a multiple of 8, then int64 t_ns[N], u
 sample_flags[N], then one float32 array per channel in the mask, in bit order:
   bit 0 accel [N][3], 1 gyro [N][3], 2 temperature [N], 3 mag [N][3], 4 orientation [N][4],
   5 linear accel [N][3], 6 gravity [N][3], 7 delta angle [N][3], 8 delta velocity [N][3],
-  9 inclination [N][3].
+  9 inclination [N][3], 10 orientation covariance [N][6].
 The literals below are that table, not imud's own constants.
 """
 
@@ -31,7 +31,8 @@ from imud.wire import (
     peek,
 )
 
-WIDTHS = {0: 3, 1: 3, 2: 1, 3: 3, 4: 4, 5: 3, 6: 3, 7: 3, 8: 3, 9: 3}  # bit -> floats a sample
+# bit -> floats a sample
+WIDTHS = {0: 3, 1: 3, 2: 1, 3: 3, 4: 4, 5: 3, 6: 3, 7: 3, 8: 3, 9: 3, 10: 6}
 SIX_AXIS = {Channel.ACCEL: 3, Channel.GYRO: 3, Channel.TEMPERATURE: 1}
 
 
@@ -74,7 +75,7 @@ def test_every_channel_round_trips_with_its_shape() -> None:
     t, ch = data(5, every, seed=3)
     ch[Channel.ORIENTATION] /= np.linalg.norm(ch[Channel.ORIENTATION], axis=1, keepdims=True)
     b = decode(encode("bno0", 0, t, ch))
-    assert int(b.mask) == (1 << 10) - 1
+    assert int(b.mask) == (1 << 11) - 1
     for c, arr in ch.items():
         assert b.channels[c].shape == arr.shape
         np.testing.assert_allclose(b.channels[c], arr, rtol=2.0**-24)

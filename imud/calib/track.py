@@ -37,6 +37,7 @@ at the start of each batch, so a batch is corrected by one number and the correc
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
@@ -150,7 +151,12 @@ class GyroBiasTracker:
         self._corr: tuple[float, float] | None = None
         self._run: _Stats | None = None  # the current still run's means
         self._prev: _Stats | None = None  # its last window
-        self._unconfirmed: list[F64] = []  # its windows' gyro means, oldest first
+        # its windows' gyro means and the variances of those means, oldest first
+        self._unconfirmed: list[tuple[F64, F64]] = []
+        # set: a confirmed window goes to it (mean, variance of the mean) instead of into the
+        # average here, and `bias` is whatever its owner says (the orientation filter's
+        # estimate: one bias, not two)
+        self.sink: Callable[[F64, F64], None] | None = None
 
     def reset(self) -> None:
         """A new calibration was loaded: what was learned was relative to the old one."""
@@ -261,9 +267,14 @@ class GyroBiasTracker:
             self._unconfirmed = []
             return
         self.state = TrackState.STILL
-        self._unconfirmed.append(w.g_mean)
+        corr = self._corr[0] if self._corr is not None else 1.0
+        self._unconfirmed.append((w.g_mean, w.g_var * corr / w.m))
         while len(self._unconfirmed) > confirm:
-            self.bias = self.bias + gain * (self._unconfirmed.pop(0) - self.bias)
+            mean, var = self._unconfirmed.pop(0)
+            if self.sink is not None:
+                self.sink(mean, var)
+            else:
+                self.bias = self.bias + gain * (mean - self.bias)
             self.learned_windows += 1
 
     def status(self) -> dict[str, Any]:

@@ -36,7 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validat
 
 from imud.buses.models import Bus
 from imud.channels import Channel
-from imud.settings import DeviceRos2, GyroBiasTracking
+from imud.settings import DeviceRos2, GyroBiasTracking, Orientation
 from imud.sim.api import SimChip
 from imud.sim.settings import SimSettings
 
@@ -71,6 +71,10 @@ class DeviceBase(BaseModel):
     gyro_bias_tracking: GyroBiasTracking = Field(
         default_factory=GyroBiasTracking,
         description="re-learn the gyro bias whenever the device is still (off by default)",
+    )
+    orientation: Orientation = Field(
+        default_factory=Orientation,
+        description="imud's orientation filter on this device (off by default)",
     )
     ros2: DeviceRos2 = Field(
         default_factory=DeviceRos2, description="its ROS 2 topics, when [ros2] is on"

@@ -3,6 +3,7 @@ long text (errors, bus-process restarts) below it, one line per device."""
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
@@ -138,6 +139,11 @@ def status_view(st: dict[str, Any], endpoint: str, console: Console) -> list[Ren
             text = Text(f"{d['name']} gyro bias tracking: ", style="bold")
             text.append(_tracking_line(tracking))
             out.append(cut(text, width))
+        orientation = d.get("orientation")
+        if orientation:
+            text = Text(f"{d['name']} orientation: ", style="bold")
+            text.append(_orientation_line(orientation))
+            out.append(cut(text, width))
     ros2 = st.get("ros2")
     if ros2:
         out.append(cut(_ros2_line(ros2), width))
@@ -148,6 +154,20 @@ def status_view(st: dict[str, Any], endpoint: str, console: Console) -> list[Ren
                 line += f"; last error: {b['last_error']}"
             out.append(cut(Text(line), width))
     return out
+
+
+def _orientation_line(o: dict[str, Any]) -> str:
+    """`running, heading relative to the start, bias 0.010 -0.020 0.003 deg/s, gravity 120 used
+    3 rejected, still 4`."""
+    bias = " ".join(f"{math.degrees(b):.3f}" for b in o.get("bias_rad_s", []))
+    line = f"{o.get('state')}, heading {o.get('heading')}, bias {bias} deg/s"
+    line += f", gravity {o.get('accel_updates', 0)} used {o.get('accel_rejected', 0)} rejected"
+    if o.get("mag_updates") or o.get("mag_rejected"):
+        line += f", field {o.get('mag_updates', 0)} used {o.get('mag_rejected', 0)} rejected"
+    line += f", still {o.get('still_updates', 0)}"
+    if o.get("restarts"):
+        line += f", restarted {o['restarts']} times after a long gap"
+    return line
 
 
 def _ros2_line(r: dict[str, Any]) -> Text:

@@ -305,26 +305,25 @@ class OrientationFilter:
         magnetometer) its mean field points north. Returns the samples consumed; their
         orientation is NaN."""
         n = int(gyro.shape[0])
-        need = max(1, round(self.init_s / dt)) - self._iv.steps
-        j = int(min(n, need))
+        target = max(1, round(self.init_s / dt))
+        # at least one sample: the fitted period may have moved the target below what is in
+        j = int(min(n, max(target - self._iv.steps, 1)))
         q_out[:j] = np.nan
         c_out[:j] = np.nan
         self._chunk(gyro[:j], None if accel is None else accel[:j], dt, np.empty((j, 4)))
         if mag is not None and self.use_mag:
             self._mag_chunk(mag[:j], np.broadcast_to(self.q, (j, 4)))
         iv = self._iv
-        if iv.steps * dt + 1e-12 < self.init_s:
+        if iv.steps < target:  # j == n: the whole batch went in
             return n
-        if iv.n == 0:  # no accelerometer yet: keep waiting
-            self._iv = _Interval()
-            self.q = np.array([1.0, 0.0, 0.0, 0.0])
-            return j
         self._iv = _Interval()
-        mean = _FORM_V @ iv.qqa.ravel() / iv.n
+        mean = _FORM_V @ iv.qqa.ravel() / max(iv.n, 1)
         g = float(np.linalg.norm(mean))
-        if not g > 0.0:
+        if iv.n == 0 or not g > 0.0:  # no gravity seen (no valid accelerometer): wait on
             self.q = np.array([1.0, 0.0, 0.0, 0.0])
-            return j
+            q_out[j:] = np.nan
+            c_out[j:] = np.nan
+            return n
         self.q = _left(tilt_quaternion(mean)) @ self.q
         self._g0, self._g0_n = g, 1
         span = iv.t * iv.n / iv.steps
@@ -372,6 +371,8 @@ class OrientationFilter:
 
     def _chunk(self, gyro: F64, accel: F64 | None, dt: float, q_out: F64) -> None:
         m = gyro.shape[0]
+        if m == 0:
+            return
         theta = (gyro - self.b) * dt
         c = np.cumsum(theta, axis=0)
         x, y, z = c[-1].tolist()

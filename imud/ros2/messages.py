@@ -159,7 +159,7 @@ class Ros2Messages:
         from imud import registry  # the chip's channels: what topics it has
 
         s = self.settings
-        channels = Channel(registry.CHIPS[d.chip].channels)
+        channels = registry.device_channels(d)
         cols: dict[Channel, slice] = {}
         picks: list[tuple[Channel, int]] = []
         width = 0
@@ -258,7 +258,7 @@ class Ros2Messages:
             return
         with self._lock:
             dev.cov = cov
-            dev.topics = self._feeds(d, Channel(registry.CHIPS[d.chip].channels), cov)
+            dev.topics = self._feeds(d, registry.device_channels(d), cov)
         log.info("%s: ROS 2 covariances now from %s", d.name, d.calibration)
 
     # --- the batches --------------------------------------------------------------------------
@@ -351,6 +351,9 @@ class Ros2Messages:
             fields = {name: x[:, 0] if ch is Channel.TEMPERATURE else x}
             if ch is Channel.ORIENTATION:
                 fields.update({f: a[have] for f, a in imu.items()})
+                cov = cols.get(Channel.ORIENTATION_COVARIANCE)
+                if cov is not None:  # imud's own filter states its covariance per sample
+                    fields["orientation_covariance"] = v[have][:, cov][:, _SYM]
             self._emit(feed.topic, Payloads(tt, messages(_lay(feed.topic), tt, fields, feed.base)))
 
 
@@ -361,8 +364,11 @@ _WIDTHS = {
     Channel.MAG: 3,  # magnetic_field
     Channel.ORIENTATION: 4,  # orientation, x, y, z, w
     Channel.TEMPERATURE: 1,  # temperature
+    Channel.ORIENTATION_COVARIANCE: 6,  # orientation_covariance, its upper triangle
 }
 _XYZW = (1, 2, 3, 0)
+# the wire's xx, xy, xz, yy, yz, zz as ROS's row-major 3 x 3
+_SYM = [0, 1, 2, 1, 3, 4, 2, 4, 5]
 # topics sent only for samples that carry their channel: (topic, channel, field)
 _OPTIONAL = (
     ("imu/data", Channel.ORIENTATION, "orientation"),
