@@ -7,8 +7,10 @@ sensor) split the samples into stretches; no Allan term spans one."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import math
+import os
 import re
 import time
 from collections.abc import Iterator
@@ -45,6 +47,16 @@ class Source:
     chip: str | None = None
     datasheet: dict[str, float] | None = None  # one-sided densities of the chip at its settings
     measured_rate: float | None = None  # set by the reader once the samples are read
+    reader: dict[str, Any] | None = None  # what read the file, and how long it took
+
+
+class Retry(Exception):
+    """A fast reader met something it does not take as it is, part-way through: the analysis
+    starts again from `fallback()` (the reader that names what is wrong, or reads it)."""
+
+    def __init__(self, fallback: Any) -> None:
+        super().__init__("fall back")
+        self.fallback = fallback
 
 
 def _duration(text: str | None) -> float | None:
@@ -95,11 +107,12 @@ def noise(
 ) -> None:
     """The Allan deviation of a recording's (or a live device's) gyro and accelerometer, and its
     noise terms: quantisation Q, white noise N, bias instability B, random walk K, rate ramp R."""
-    from imud.noise.allan import StreamingAllan, lags
+    from imud.noise.allan import MAX_FRACTION, StreamingAllan, lags
     from imud.noise.fit import fit
     from imud.noise.report import kalibr_yaml, summary, text
     from imud.noise.tempbins import TemperatureBins
 
+    wall = time.monotonic()
     for option, out in (("--kalibr", kalibr), ("--plot", plot_path)):
         if out is not None:
             _new_file(Path(out), option, as_json)
@@ -121,24 +134,40 @@ def noise(
               f"`imud noise {source} --duration 2h`)", EXIT_USAGE, as_json)  # fmt: skip
     else:
         src = _mcap(path, device, as_json) if _is_mcap(path) else _csv(path, as_json)
-    if src.n < 3:
-        _fail(f"{src.name}: {src.n} samples: the Allan deviation needs at least 3", EXIT_USAGE,
-              as_json)  # fmt: skip
-    acc = StreamingAllan(src.rate, 6, lags(src.n, per_decade))
-    bins = TemperatureBins(src.rate, by_temp) if by_temp is not None else None
-    saw_temp = False
-    for c in src.chunks:
-        if c is None:
-            acc.gap()
-            if bins:
-                bins.gap()
-            continue
-        y, temp = c
-        acc.feed(y)
-        if bins is not None and temp is not None:
-            saw_temp = True
-            bins.feed(y, temp)
+
+    def analyse(src: Source) -> tuple[StreamingAllan, TemperatureBins | None, bool]:
+        if src.n < 3:
+            _fail(f"{src.name}: {src.n} samples: the Allan deviation needs at least 3",
+                  EXIT_USAGE, as_json)  # fmt: skip
+        acc = StreamingAllan(src.rate, 6, lags(src.n, per_decade))
+        bins = TemperatureBins(src.rate, by_temp) if by_temp is not None else None
+        saw_temp = False
+        for c in _joined(src.chunks):
+            if c is None:
+                acc.gap()
+                if bins:
+                    bins.gap()
+                continue
+            y, temp = c
+            acc.feed(y)
+            if bins is not None and temp is not None:
+                saw_temp = True
+                bins.feed(y, temp)
+        return acc, bins, saw_temp
+
+    try:
+        acc, bins, saw_temp = analyse(src)
+    except Retry as e:
+        src = e.fallback()
+        acc, bins, saw_temp = analyse(src)
+    wall = time.monotonic() - wall
     r = acc.result()
+    # taus up to a tenth of the samples read (the grid was sized from an estimate of their count)
+    top = max(1, int(max(1.0, r.n * MAX_FRACTION)))
+    if (r.m > top).any():
+        keep = r.m <= top
+        r = dataclasses.replace(r, tau_s=r.tau_s[keep], m=r.m[keep], adev=r.adev[keep],
+                                terms=r.terms[keep], stride=r.stride[keep])  # fmt: skip
     rate = src.measured_rate or src.rate
     if rate != src.rate:  # the taus at the measured rate (the sums do not depend on it)
         r = dataclasses.replace(r, tau_s=r.m / rate)
@@ -165,6 +194,7 @@ def noise(
         except PlotUnavailable as e:
             _fail(str(e), EXIT_USAGE, as_json)
     by = _by_temperature(bins, rate) if bins is not None else None
+    reader = None if src.reader is None else {**src.reader, "total_s": round(wall, 3)}
     if as_json:
         click.echo(json.dumps({
             "source": src.name, "device": src.device, "chip": src.chip, "rate_hz": rate,
@@ -173,10 +203,12 @@ def noise(
             "gyro_adev_rad_s": r.adev[:, 0:3].tolist(),
             "accel_adev_m_s2": r.adev[:, 3:6].tolist(),
             "fit": s, "by_temperature": by,
-            "kalibr": kalibr, "plot": plot_path,
+            "kalibr": kalibr, "plot": plot_path, "reader": reader,
         }, indent=1))  # fmt: skip
         return
     click.echo(f"{src.name}: {r.n:,} samples at {rate:g} Hz in {acc.stretches} stretch(es)")
+    if reader is not None:
+        click.echo(_reader_line(reader))
     click.echo(f"{'tau s':>10} {'gyro x':>10} {'y':>10} {'z':>10} rad/s {'accel x':>10} "
                f"{'y':>10} {'z':>10} m/s^2  terms")  # fmt: skip
     for i in range(r.tau_s.size):
@@ -202,6 +234,16 @@ def noise(
     for option, out in (("Kalibr imu.yaml", kalibr), ("plot", plot_path)):
         if out is not None:
             click.echo(f"{option}: {out}")
+
+
+def _reader_line(reader: dict[str, Any]) -> str:
+    """How the samples were read: the parser, its seconds and MB/s, and the whole analysis'."""
+    line = f"read by {reader['parser']}"
+    if reader.get("read_s"):
+        line += f": {reader['read_s']:.1f} s parsing"
+        if reader.get("bytes"):
+            line += f" ({reader['bytes'] / 1e6 / max(reader['read_s'], 1e-9):.0f} MB/s)"
+    return line + f", {reader['total_s']:.1f} s reading and analysing"
 
 
 def _by_temperature(bins: Any, rate: float) -> list[dict[str, Any]]:
@@ -265,19 +307,59 @@ def _batch_chunks(batches: Iterator[Any], name: str, as_json: bool) -> Iterator[
             _fail(f"{name} has no gyro and accelerometer", EXIT_USAGE, as_json)
         tc = b.get(Channel.TEMPERATURE)
         temp = None if tc is None else np.asarray(tc, dtype=np.float64)
-        y = np.hstack((g, a)).astype(np.float64)
-        ok = np.isfinite(y).all(axis=1)
-        if ok.all():
-            yield y, temp
+        yield from _finite(np.hstack((g, a)).astype(np.float64), temp)
+
+
+JOIN = 131_072  # samples fed to the Allan sums at once
+
+
+def _joined(chunks: Iterator[Chunk]) -> Iterator[Chunk]:
+    """Consecutive chunks joined up to JOIN samples (a gap, or a change in whether they carry
+    a temperature, ends a join): the sums' step costs a Python loop over the taus whatever its
+    length, so a recording's 20-sample batches fed one by one cost 10x their arithmetic."""
+    held: list[tuple[F64, F64 | None]] = []
+    n = 0
+
+    def out() -> Chunk:
+        ys = [y for y, _ in held]
+        ts = [t for _, t in held if t is not None]
+        y = ys[0] if len(ys) == 1 else np.concatenate(ys)
+        temp = None if len(ts) != len(ys) else ts[0] if len(ts) == 1 else np.concatenate(ts)
+        return y, temp
+
+    for c in chunks:
+        if c is not None and held and (c[1] is None) != (held[0][1] is None):
+            yield out()
+            held, n = [], 0
+        if c is None:
+            if held:
+                yield out()
+                held, n = [], 0
+            yield None
             continue
-        idx = np.flatnonzero(~ok)
-        starts = np.r_[0, idx + 1]
-        stops = np.r_[idx, y.shape[0]]
-        for k, (i, j) in enumerate(zip(starts, stops, strict=True)):
-            if k:
-                yield None
-            if j > i:
-                yield y[i:j], None if temp is None else temp[i:j]
+        held.append(c)
+        n += c[0].shape[0]
+        if n >= JOIN:
+            yield out()
+            held, n = [], 0
+    if held:
+        yield out()
+
+
+def _finite(y: F64, temp: F64 | None) -> Iterator[Chunk]:
+    """The samples, a row that is not finite (the chip marked it invalid: NaN) a gap."""
+    ok = np.isfinite(y).all(axis=1)
+    if ok.all():
+        yield y, temp
+        return
+    idx = np.flatnonzero(~ok)
+    starts = np.r_[0, idx + 1]
+    stops = np.r_[idx, y.shape[0]]
+    for k, (i, j) in enumerate(zip(starts, stops, strict=True)):
+        if k:
+            yield None
+        if j > i:
+            yield y[i:j], None if temp is None else temp[i:j]
 
 
 def _mcap(path: Path, device: str | None, as_json: bool) -> Source:
@@ -305,14 +387,91 @@ def _mcap(path: Path, device: str | None, as_json: bool) -> Source:
         odr = odr or 1.0
     src = Source(str(path), odr if odr > 0 else 1.0, n_est, iter(()), device,
                  info.get("chip"), _datasheet(rec, device))  # fmt: skip
+    parts = rec.parts or [(rec.path, rec.indexed)]
+    if all(indexed for _, indexed in parts) and os.environ.get("IMUD_NOISE_MCAP") != "library":
+        src.chunks = _scanned(src, [p for p, _ in parts], rec.devices[device], as_json,
+                              lambda: _mcap_library(src, rec, device, as_json))  # fmt: skip
+        return src
+    return _mcap_library(src, rec, device, as_json)
+
+
+def _scanned(src: Source, paths: list[Path], topic: str, as_json: bool,
+             fallback: Any) -> Iterator[Chunk]:  # fmt: skip
+    """The samples by imud/noise/mcapscan.py: many chunks' batches at a time. Cut at gaps as
+    the batch reader cuts them; the rate is measured over each stretch's stamps."""
+    from imud.noise.mcapscan import NotScannable, scan
+
+    src.reader = {"parser": "MCAP chunk scan (imud/noise/mcapscan.py)", "read_s": 0.0,
+                  "bytes": sum(p.stat().st_size for p in paths)}  # fmt: skip
+    end: int | None = None
+    first_t = last_t = None
+    n_run = spans_n = spans_ns = 0
+    runs = scan(paths, topic)
+    while True:
+        t0 = time.perf_counter()
+        try:
+            run = next(runs, None)
+        except NotScannable:
+            raise Retry(fallback) from None
+        src.reader["read_s"] += time.perf_counter() - t0
+        if run is None:
+            break
+        ends = run.first_seq + run.count
+        prev = np.r_[run.first_seq[0] if end is None else end, ends[:-1]]
+        new = (run.first_seq != prev) | (run.lost > 0)
+        if end is None:
+            new[0] = False
+        end = int(ends[-1])
+        bounds = np.r_[0, np.flatnonzero(new), run.count.size]
+        starts = np.r_[0, np.cumsum(run.count)]
+        for i, j in itertools.pairwise(bounds):
+            if i == j:
+                continue
+            if new[i]:
+                if first_t is not None and last_t is not None and n_run > 1:
+                    spans_n += n_run - 1
+                    spans_ns += last_t - first_t
+                first_t, n_run = None, 0
+                yield None
+            first_t = int(run.t_first[i]) if first_t is None else first_t
+            last_t = int(run.t_last[j - 1])
+            n_run += int(run.count[i:j].sum())
+            a, b = int(starts[i]), int(starts[j])
+            yield from _finite(run.y[a:b], None if run.temp is None else run.temp[a:b])
+    if first_t is not None and last_t is not None and n_run > 1:
+        spans_n += n_run - 1
+        spans_ns += last_t - first_t
+    if spans_ns > 0:
+        src.measured_rate = spans_n / (spans_ns / 1e9)
+    elif src.rate == 1.0:
+        _fail(f"{src.name}: {src.device} has too few samples for an Allan deviation", EXIT_USAGE,
+              as_json)  # fmt: skip
+
+
+def _mcap_library(src: Source, rec: Any, device: str, as_json: bool) -> Source:
+    """The batches one at a time through the recording reader (a file without its summary, or
+    one the chunk scan does not take as it is)."""
+    from imud.wire import decode
+
+    path = src.name
+    src.reader = {"parser": "the mcap library, a batch at a time (imud/recording/reader.py)"}
     span = {"n": 0, "stretches": 0, "ns": 0}
+
+    def batches() -> Iterator[bytes]:
+        from imud.recording.reader import McapInputError
+
+        try:
+            for _, _, w in rec.batches([device]):
+                yield w
+        except McapInputError as e:  # an indexed file damaged past its summary
+            _fail(str(e), EXIT_USAGE, as_json)
 
     def measured() -> Iterator[Any]:
         """The decoded batches, timing each stretch for the measured rate."""
         prev_end: int | None = None
         first_t = last_t = None
         n_run = 0
-        for _, _, w in rec.batches([device]):
+        for w in batches():
             b = decode(w)
             if not b.count:
                 continue
@@ -339,8 +498,92 @@ def _mcap(path: Path, device: str | None, as_json: bool) -> Source:
     return src
 
 
+STREAM_BYTES = 64 << 20  # a CSV bigger than this is read a block at a time (imud/noise/csvstream)
+
+
 def _csv(path: Path, as_json: bool) -> Source:
+    """A file up to STREAM_BYTES is read whole by read_csv (every form the documented format
+    allows, a refusal naming its line); a bigger one in imud's own columns a block at a time
+    (imud/noise/csvstream.py), handing over to read_csv for a line it does not take."""
+    try:
+        big = path.stat().st_size > STREAM_BYTES
+    except OSError:
+        big = False
+    if big:
+        from imud.noise.csvstream import NotStreamable, open_stream
+
+        try:
+            return _csv_streamed(open_stream(path), as_json)
+        except NotStreamable:
+            pass
+    return _csv_whole(path, as_json)
+
+
+def _csv_streamed(stream: Any, as_json: bool) -> Source:
+    """The rows a block at a time. The period, for the gap rule (a step of over 1.5 periods),
+    is the median step of the first block (131,072 rows or more); the rate is measured over
+    every step inside the stretches. The sample count sizing the tau grid is the file's size
+    over its shortest row among the first ones (an upper bound: taus beyond a tenth of what
+    was read are left out at the end)."""
+    from imud.calib.csvio import CsvError, unit_problems
+    from imud.noise.csvstream import NotStreamable, blocks
+    from imud.units import STANDARD_GRAVITY
+
+    path = stream.path
+    parser = os.environ.get("IMUD_NOISE_CSV", "pyarrow")
+    it = blocks(stream, use_pyarrow=parser != "numpy")
+    first = next(it, None)
+    if first is None or first.t.size < 3:
+        raise NotStreamable("too few rows for a block")
+    problems = unit_problems(first.y[:, 3:6], first.y[:, 0:3], first.temp, None,
+                             ("m/s2", "rad/s", "T"), STANDARD_GRAVITY)  # fmt: skip
+    if problems:
+        cols = "; ".join(", ".join(stream.names[stream.index[q]] if q in stream.index else q
+                                   for q in qs) for qs, _ in problems)  # fmt: skip
+        _fail(str(CsvError(path, "; ".join(p for _, p in problems), None, cols)), EXIT_USAGE,
+              as_json)  # fmt: skip
+    period = float(np.median(np.diff(first.t)))
+    with open(path, "rb") as f:
+        head = f.read(1 << 16).splitlines()[stream.skip_lines + 1 : -1]
+    shortest = min((len(x) + 1 for x in head if x.strip()), default=8)
+    n_est = int(path.stat().st_size / shortest) + 1024
+    src = Source(str(path), 1e9 / period, n_est, iter(()), stream.comments.get("device"),
+                 stream.comments.get("chip"))  # fmt: skip
+    src.reader = {"parser": "", "read_s": 0.0, "bytes": path.stat().st_size}
+
+    def chunks() -> Iterator[Chunk]:
+        inner_n = inner_ns = 0
+        last: int | None = None
+        b: Any = first
+        try:
+            while b is not None:
+                t = b.t
+                dt = np.diff(t) if last is None else np.diff(np.r_[last, t])
+                cut = dt > 1.5 * period  # dt[k]: the step into row k (or k + 1 on the first)
+                inner_n += int(np.count_nonzero(~cut))
+                inner_ns += int(dt[~cut].sum())
+                rows = np.flatnonzero(cut) + (1 if last is None else 0)
+                last = int(t[-1])
+                for k, (i, j) in enumerate(itertools.pairwise(np.r_[0, rows, t.size])):
+                    if k:
+                        yield None
+                    yield b.y[i:j], None if b.temp is None else b.temp[i:j]
+                b = next(it, None)
+        except NotStreamable:
+            raise Retry(lambda: _csv_whole(path, as_json)) from None
+        src.reader = {"parser": stream.parser, "read_s": round(stream.read_s, 3),
+                      "bytes": path.stat().st_size}  # fmt: skip
+        if inner_n:
+            src.measured_rate = inner_n / (inner_ns / 1e9)
+
+    src.chunks = chunks()
+    return src
+
+
+def _csv_whole(path: Path, as_json: bool) -> Source:
     from imud.calib.csvio import CsvError, read_comments, read_csv
+
+    w0 = time.perf_counter()
 
     try:
         rec = read_csv(path)
@@ -374,7 +617,13 @@ def _csv(path: Path, as_json: bool) -> Source:
                 yield y[rows], None if temp is None else temp[rows]
 
     comments = read_comments(path)
-    return Source(str(path), rate, n, chunks(), comments.get("device"), comments.get("chip"))
+    src = Source(str(path), rate, n, chunks(), comments.get("device"), comments.get("chip"))
+    src.reader = {
+        "parser": "read_csv, whole (imud/calib/csvio.py: numpy.loadtxt)",
+        "read_s": round(time.perf_counter() - w0, 3),
+        "bytes": path.stat().st_size,
+    }
+    return src
 
 
 def _live(device: str, duration: float, endpoint: str, prefix: str, as_json: bool) -> Source:
