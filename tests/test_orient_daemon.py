@@ -139,3 +139,51 @@ def test_config_errors_name_the_field(device: dict[str, object], words: list[str
         parse_config({"device": [{"name": "t0", "bus": {"kind": "sim"}, **device}]})
     for w in words:
         assert w in str(e.value)
+
+
+def test_imu_data_carries_the_orientation_and_its_covariance_per_message() -> None:
+    """The ROS 2 side: a device with the filter gets imu/data (sensor_msgs/Imu) beside
+    imu/data_raw; each message's orientation is x, y, z, w of the wire's w, x, y, z and its
+    orientation_covariance the wire's six values as a symmetric row-major 3 x 3 (parsed by the
+    hand-written CDR reader of the rmw_zenoh test)."""
+    from imud.ros2.messages import Ros2Messages
+    from imud.wire import encode
+    from tests.test_ros2_daemon import parse_imu
+
+    cfg = parse_config(
+        {
+            "ros2": {"enabled": True, "rate_hz": 1000, "connect": []},
+            "device": [{"name": "imu0", "chip": "mpu6050", "odr_hz": 1000, "dlpf_hz": 188,
+                        "bus": {"kind": "sim"}, "orientation": {"enabled": True}}],
+        }
+    )  # fmt: skip
+    got: dict[str, list[bytes]] = {}
+    msgs = Ros2Messages(
+        cfg, lambda topic, p: got.setdefault(topic.name, []).extend(p), diagnostics=False
+    )
+    n = 4
+    rng = np.random.default_rng(1)
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q[0] = np.nan  # the filter's start: no orientation for this sample
+    cov = rng.uniform(1e-6, 1e-5, size=(n, 6))
+    chans = {
+        Channel.ACCEL: rng.normal(size=(n, 3)),
+        Channel.GYRO: rng.normal(size=(n, 3)),
+        Channel.TEMPERATURE: np.full(n, 25.0),
+        Channel.ORIENTATION: q,
+        Channel.ORIENTATION_COVARIANCE: cov,
+    }
+    t = 1_764_000_000_000_000_000 + 1_000_000 * np.arange(n)
+    msgs.batch("imu0", encode("imu0", 0, t, {c: a.astype(np.float32) for c, a in chans.items()}))
+    msgs.flush()
+    raw = [parse_imu(b) for b in got["/imu0/imu/data_raw"]]
+    fused = [parse_imu(b) for b in got["/imu0/imu/data"]]
+    assert len(raw) == n and len(fused) == n - 1  # none for the sample without one
+    assert all(m["orientation_covariance"][0] == -1.0 for m in raw)
+    for m, i in zip(fused, range(1, n), strict=True):
+        w, x, y, z = q[i].astype(np.float32)
+        np.testing.assert_allclose(m["orientation"], [x, y, z, w], rtol=1e-6)
+        xx, xy, xz, yy, yz, zz = cov[i].astype(np.float32)
+        want = [xx, xy, xz, xy, yy, yz, xz, yz, zz]
+        np.testing.assert_allclose(m["orientation_covariance"], want, rtol=1e-6)
