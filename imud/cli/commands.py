@@ -83,6 +83,12 @@ def _noise() -> click.Command:
     return noise
 
 
+def _orient() -> click.Command:
+    from imud.cli.orient import orient
+
+    return orient
+
+
 class _Commands(click.Group):
     """The subcommands, the heavy ones (NumPy, the calibration code) loaded only when they run
     or show their help: `imud status` imports no more than it uses."""
@@ -95,6 +101,7 @@ class _Commands(click.Group):
         "view": _view,
         "plot": _plot,
         "noise": _noise,
+        "orient": _orient,
     }
 
     def list_commands(self, ctx: click.Context) -> list[str]:
