@@ -13,7 +13,6 @@ raw channels --stamp (the sample-clock fit, per die)--> t_ns, seq
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,7 +93,6 @@ def to_si(raw: RawBatch) -> dict[Channel, F64]:
 
 
 _OUTSIDE = np.uint32(SampleFlag.TEMPERATURE_OUTSIDE_CALIBRATION)
-_NO_ORIENTATION = np.uint32(Channel.ORIENTATION | Channel.ORIENTATION_COVARIANCE)
 
 
 def correct(
@@ -286,11 +284,6 @@ class Pipeline:
             channels = self.orient.run(
                 channels, (st.period_ns or self.period_ns) / 1e9, st.lost_before
             )
-            q = channels.get(Channel.ORIENTATION)
-            if q is not None and q.shape[0] and math.isnan(q[0, 0]):  # before its start
-                unset = np.isnan(q[:, 0])
-                flags = np.zeros(raw.n, dtype=np.uint32) if flags is None else flags
-                flags[unset] |= _NO_ORIENTATION
         if self.tracker is not None:
             channels = track(self.tracker, channels, (st.period_ns or self.period_ns) / 1e9)
         batch_flags = (

@@ -152,10 +152,7 @@ def _from_mcap(rec: Any, name: str, over: dict[str, Any], out: Path | None) -> d
             q, cov = ch[Channel.ORIENTATION], ch[Channel.ORIENTATION_COVARIANCE]
             rows.append((b.t_ns, q, cov))
             if writer is not None:
-                flags = b.sample_flags.copy()
-                flags[np.isnan(q[:, 0])] |= np.uint32(
-                    Channel.ORIENTATION | Channel.ORIENTATION_COVARIANCE
-                )
+                flags = b.sample_flags
                 chans = {**b.channels, Channel.ORIENTATION: q, Channel.ORIENTATION_COVARIANCE: cov}
                 writer.add(
                     encode(
