@@ -48,6 +48,9 @@ class Source:
     datasheet: dict[str, float] | None = None  # one-sided densities of the chip at its settings
     measured_rate: float | None = None  # set by the reader once the samples are read
     reader: dict[str, Any] | None = None  # what read the file, and how long it took
+    # read on a thread of its own while the sums run (a file; not live, whose Ctrl-C ends the
+    # capture where the main thread receives it)
+    prefetch: bool = True
 
 
 class Retry(Exception):
@@ -142,7 +145,8 @@ def noise(
         acc = StreamingAllan(src.rate, 6, lags(src.n, per_decade))
         bins = TemperatureBins(src.rate, by_temp) if by_temp is not None else None
         saw_temp = False
-        for c in _joined(src.chunks):
+        chunks = _joined(src.chunks)
+        for c in _prefetched(chunks) if src.prefetch else chunks:
             if c is None:
                 acc.gap()
                 if bins:
@@ -344,6 +348,50 @@ def _joined(chunks: Iterator[Chunk]) -> Iterator[Chunk]:
             held, n = [], 0
     if held:
         yield out()
+
+
+def _prefetched(chunks: Iterator[Chunk], depth: int = 4) -> Iterator[Chunk]:
+    """The chunks read on another thread, `depth` ahead: parsing (pyarrow, zstd, NumPy's
+    gathers) and the Allan sums (NumPy) both run mostly without the GIL, so on two cores a
+    file is read while the previous chunk is summed. What the reader raises (a refusal, a
+    hand-over to another reader) is raised here, in order."""
+    import queue
+    import threading
+
+    q: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def put(item: tuple[str, Any]) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False  # the caller has stopped reading
+
+    def read() -> None:
+        try:
+            for c in chunks:
+                if not put(("chunk", c)):
+                    return
+            put(("end", None))
+        except BaseException as e:  # raised again on the caller's thread
+            put(("error", e))
+
+    t = threading.Thread(target=read, name="imud-noise-read", daemon=True)
+    t.start()
+    try:
+        while True:
+            kind, item = q.get()
+            if kind == "end":
+                return
+            if kind == "error":
+                raise item
+            yield item
+    finally:
+        stop.set()
+        t.join(timeout=5.0)
 
 
 def _finite(y: F64, temp: F64 | None) -> Iterator[Chunk]:
@@ -644,7 +692,7 @@ def _live(device: str, duration: float, endpoint: str, prefix: str, as_json: boo
     datasheet = _live_datasheet(s, prefix, device)
     sub = s.declare_subscriber(data_key(device, prefix), zenoh.handlers.FifoChannel(16384))
     src = Source(f"live {device}", rate, int(rate * duration * 1.05) + 1024, iter(()), device,
-                 dev.get("chip"), datasheet)  # fmt: skip
+                 dev.get("chip"), datasheet, prefetch=False)  # fmt: skip
 
     def arrivals() -> Iterator[Any]:
         end = time.monotonic() + duration

@@ -6,8 +6,8 @@ about 60 MB/s): right for a calibration's minutes, not for a day. Here the rows 
 block at a time and handed on, so memory stays a few blocks whatever the file's length:
 
 - with pyarrow (the optional `noise` extra): `pyarrow.csv.open_csv`, its streaming reader, whose
-  C++ parser and number conversion (correctly rounded) run at about 300 MB/s on one core of the
-  development machine and read the next block on another thread while this one is analysed;
+  C++ parser and number conversion (correctly rounded) run at about 300 MB/s on the development
+  machine (docs/noise.md);
 - without it: NumPy's `fromstring(sep=",")` on 16 MB of text at a time, about 60 MB/s.
 
 Only a file whose header names imud's own columns (timestamp_ns, ax..gz, optionally temp,
@@ -187,10 +187,7 @@ def _numpy_blocks(s: CsvStream) -> Iterator[Block]:
         while True:
             chunk = f.read(NUMPY_BLOCK)
             text = tail + chunk
-            if not chunk:
-                cut = len(text)
-            else:
-                cut = text.rfind(b"\n") + 1
+            cut = text.rfind(b"\n") + 1 if chunk else len(text)  # the last line may lack one
             tail, text = text[cut:], text[:cut]
             if text.strip():
                 yield _numpy_parse(s, text, width)
