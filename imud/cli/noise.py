@@ -110,7 +110,7 @@ def noise(
 ) -> None:
     """The Allan deviation of a recording's (or a live device's) gyro and accelerometer, and its
     noise terms: quantisation Q, white noise N, bias instability B, random walk K, rate ramp R."""
-    from imud.noise.allan import MAX_FRACTION, StreamingAllan, lags
+    from imud.noise.allan import StreamingAllan, lags
     from imud.noise.fit import fit
     from imud.noise.report import kalibr_yaml, summary, text
     from imud.noise.tempbins import TemperatureBins
@@ -166,10 +166,11 @@ def noise(
         acc, bins, saw_temp = analyse(src)
     wall = time.monotonic() - wall
     r = acc.result()
-    # taus up to a tenth of the samples read (the grid was sized from an estimate of their count)
-    top = max(1, int(max(1.0, r.n * MAX_FRACTION)))
-    if (r.m > top).any():
-        keep = r.m <= top
+    # the taus of the samples read (the grid was sized from an estimate of their count, an
+    # upper bound: the same geometric grid, longer), as a grid sized from the count would be
+    grid = StreamingAllan(1.0, 1, lags(max(r.n, 1), per_decade)).m
+    keep = np.isin(r.m, grid)
+    if not keep.all():
         r = dataclasses.replace(r, tau_s=r.tau_s[keep], m=r.m[keep], adev=r.adev[keep],
                                 terms=r.terms[keep], stride=r.stride[keep])  # fmt: skip
     rate = src.measured_rate or src.rate
@@ -416,7 +417,7 @@ def _mcap(path: Path, device: str | None, as_json: bool) -> Source:
     taus are relabelled at the measured rate at the end. A file without its summary is
     counted first (it has to be read to know its length)."""
     from imud.recording.reader import McapInputError, _span, open_recordings
-    from imud.wire import decode
+    from imud.wire import WireError, decode
 
     try:
         rec = open_recordings([path])
@@ -428,10 +429,16 @@ def _mcap(path: Path, device: str | None, as_json: bool) -> Source:
     single = rec.indexed and len(rec.parts) <= 1
     n_est = 0
     if single and odr > 0:
-        first, last = _span(rec)
-        n_est = int((last - first) / 1e9 * odr * 1.05) + 1024  # the last batch's samples, margin
+        try:
+            first, last = _span(rec)
+            n_est = int((last - first) / 1e9 * odr * 1.05) + 1024  # the last batch's, margin
+        except Exception:  # a damaged first or last chunk (zstd's, the library's errors):
+            n_est = 0  # counted below, where the damage is said
     if n_est < 3:  # no summary, a split recording, or no rate recorded: count
-        n_est = sum(decode(w).count for _, _, w in rec.batches([device]))
+        try:
+            n_est = sum(decode(w).count for _, _, w in rec.batches([device]))
+        except (McapInputError, WireError) as e:
+            _fail(f"{path}: {device}: damaged: {e}", EXIT_USAGE, as_json)
         odr = odr or 1.0
     src = Source(str(path), odr if odr > 0 else 1.0, n_est, iter(()), device,
                  info.get("chip"), _datasheet(rec, device))  # fmt: skip
@@ -459,7 +466,9 @@ def _scanned(src: Source, paths: list[Path], topic: str, as_json: bool,
         t0 = time.perf_counter()
         try:
             run = next(runs, None)
-        except NotScannable:
+        except (NotScannable, ValueError, IndexError, OverflowError, MemoryError, OSError):
+            # a damaged file the scan's checks did not name: the recording reader reads it
+            # or says what is wrong
             raise Retry(fallback) from None
         src.reader["read_s"] += time.perf_counter() - t0
         if run is None:
@@ -499,7 +508,7 @@ def _scanned(src: Source, paths: list[Path], topic: str, as_json: bool,
 def _mcap_library(src: Source, rec: Any, device: str, as_json: bool) -> Source:
     """The batches one at a time through the recording reader (a file without its summary, or
     one the chunk scan does not take as it is)."""
-    from imud.wire import decode
+    from imud.wire import WireError, decode
 
     path = src.name
     src.reader = {"parser": "the mcap library, a batch at a time (imud/recording/reader.py)"}
@@ -520,7 +529,10 @@ def _mcap_library(src: Source, rec: Any, device: str, as_json: bool) -> Source:
         first_t = last_t = None
         n_run = 0
         for w in batches():
-            b = decode(w)
+            try:
+                b = decode(w)
+            except WireError as e:
+                _fail(f"{path}: {device}: a damaged batch: {e}", EXIT_USAGE, as_json)
             if not b.count:
                 continue
             if prev_end is not None and (b.first_seq != prev_end or b.lost_before):

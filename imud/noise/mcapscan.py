@@ -174,12 +174,17 @@ def _decode(pending: list[tuple[bytes, I64]], cid: int) -> Run:
     base = np.cumsum([0, *lengths[:-1]])
     buf = b"".join(r for r, _ in pending)
     o = np.concatenate([w + b for (_, w), b in zip(pending, base, strict=True)])
+    # where each message's chunk ends: no message may reach past it
+    stop = np.repeat(base + np.array(lengths), [w.size for _, w in pending])
     u8 = np.frombuffer(buf, np.uint8)
-    if o.size and (o.min() < 0 or int(o.max()) + _MESSAGE_HEAD + _CDR_HEAD + HEADER.size > u8.size):
+    if (o < 0).any() or (o + _MESSAGE_HEAD + _CDR_HEAD + HEADER.size > stop).any():
         raise NotScannable("a message index pointing outside its chunk")
     if (u8[o] != _OP_MESSAGE).any() or (_take(u8, o + 9, "<u2") != cid).any():
         raise NotScannable("a record that is not the device's message where its index says")
-    length = _take(u8, o + 1, "<u8").astype(np.int64)
+    length = _take(u8, o + 1, "<u8")
+    if (length > np.uint64(1 << 40)).any() or (o + 9 + length.astype(np.int64) > stop).any():
+        raise NotScannable("a message longer than its chunk")
+    length = length.astype(np.int64)
     cdr = o + _MESSAGE_HEAD
     w = cdr + _CDR_HEAD  # the wire bytes (docs/wire-format.md)
     wire_len = _take(u8, cdr + 4, "<u4").astype(np.int64)
@@ -222,7 +227,8 @@ def _decode(pending: list[tuple[bytes, I64]], cid: int) -> Run:
     if has_t.all():
         temp = _gather(u8, views, at[Channel.TEMPERATURE], n).astype(np.float64)
     y = np.empty((g.shape[0], 6))
-    y[:, 0:3], y[:, 3:6] = g, a
+    with np.errstate(invalid="ignore"):  # a chip's invalid sample is NaN: a gap, cut later
+        y[:, 0:3], y[:, 3:6] = g, a
     t_first = _take(u8, t_off, "<i8").astype(np.int64)
     t_last = _take(u8, t_off + 8 * (n - 1), "<i8").astype(np.int64)
     return Run(first_seq, n, lost, t_first, t_last, y, temp)
