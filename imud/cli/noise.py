@@ -247,7 +247,8 @@ def _reader_line(reader: dict[str, Any]) -> str:
     if reader.get("read_s"):
         line += f": {reader['read_s']:.1f} s parsing"
         if reader.get("bytes"):
-            line += f" ({reader['bytes'] / 1e6 / max(reader['read_s'], 1e-9):.0f} MB/s)"
+            mb_s = reader["bytes"] / 1e6 / max(reader["read_s"], 1e-9)
+            line += f" ({mb_s:.0f} MB/s of the file)"
     return line + f", {reader['total_s']:.1f} s reading and analysing"
 
 
