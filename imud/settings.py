@@ -67,6 +67,14 @@ class Orientation(BaseModel):
     gyro_bias_walk: float = Field(
         2e-5, ge=0.0, description="how fast the bias wanders, rad/s per sqrt(s)"
     )
+    linear_accel_max_m_s2: float = Field(
+        0.2,
+        gt=0.0,
+        le=20.0,
+        description="the most linear acceleration taken as the platform's own motion; beyond "
+        "it, gravity's reading is rejected and the gyro carries the orientation (raise it for a "
+        "platform that accelerates hard for long, at the price of tilt during it)",
+    )
     start_s: float = Field(
         1.0,
         gt=0.0,

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from enum import StrEnum
+from enum import Enum, StrEnum
 
 import numpy as np
 import numpy.typing as npt
@@ -41,14 +41,19 @@ import numpy.typing as npt
 F64 = npt.NDArray[np.float64]
 
 CHI2_2DOF_999 = 13.816  # innovation gate: chi-squared 2 dof, upper tail 1e-3
+CHI2_2DOF_95 = 5.991
 CHI2_1DOF_999 = 10.828
 CHI2_3DOF_999 = 16.266
 # how fast the linear acceleration's variance follows the innovations (per correction): about
 # twenty corrections, two seconds at the default rate
 ADAPT_GAIN = 0.05
 LINEAR_FLOOR = 0.001  # m/s^2: never assumed steadier than this
-LINEAR_CEILING = 10.0
+# m/s^2: the most linear acceleration taken as the platform's own (a state); beyond, an
+# acceleration is an outlier the innovation gate rejects, so a car's 3 m/s^2 turn is ridden
+# through on the gyro instead of tilting the estimate (the daemon's `linear_accel_max_m_s2`)
+LINEAR_CEILING = 0.2
 G0_GAIN = 0.003  # the reference |gravity| follows |a| over about thirty seconds
+STEADY_AFTER = 12  # corrections (two seconds at the default rate)
 LINEAR_STEADY = 0.05  # m/s^2: at most this much linear acceleration, the bias learns from gravity
 MAG_NORM_TOLERANCE = 0.1  # a field whose magnitude departs from the reference by more: disturbed
 INIT_TILT_SIGMA = math.radians(5.0)  # the first mean may hold linear acceleration: say so
@@ -57,6 +62,17 @@ _I2 = np.eye(2)
 _I3 = np.eye(3)
 N_STATES = 8  # world rotation error 3, gyro bias 3, horizontal linear acceleration 2
 _I8 = np.eye(N_STATES)
+
+
+class Learn(Enum):
+    """What a gravity correction may teach beyond the tilt (see `_accel_update`)."""
+
+    ALL = "all"
+    HORIZONTAL = "horizontal"  # the bias's components across the body's vertical
+    NOTHING = "nothing"
+    # ALL if the innovation is well inside its own 95 % region, else NOTHING: before the
+    # linear acceleration's level is known, only what plainly agrees with the model
+    IF_CONSISTENT = "if_consistent"
 
 
 class OrientState(StrEnum):
@@ -232,6 +248,7 @@ class OrientationFilter:
         declination_rad: float = 0.0,
         linear_time_s: float = 1.0,
         init_s: float = 1.0,
+        linear_max: float = LINEAR_CEILING,
     ) -> None:
         self.noise = noise
         self.update_s = 1.0 / update_hz
@@ -245,6 +262,7 @@ class OrientationFilter:
         # assumed steady at first (the innovations show otherwise within a few corrections)
         self.linear_var = LINEAR_FLOOR**2
         self.linear_time_s = linear_time_s
+        self.linear_max = linear_max
         self._q_density = np.array([noise.gyro**2] * 3 + [noise.bias_walk**2] * 3 + [0.0, 0.0])
         self.q = np.array([1.0, 0.0, 0.0, 0.0])
         self.b = np.zeros(3)
@@ -466,22 +484,30 @@ class OrientationFilter:
         y = mean[:2] - self.a
         # covariance matching: the innovations' spread beyond what the filter predicts is the
         # platform's linear acceleration (or vibration the average did not cancel); its
-        # variance follows, within [LINEAR_FLOOR, LINEAR_CEILING], rejected intervals included
+        # variance follows, within [LINEAR_FLOOR, linear_max], rejected intervals included
         hph = h @ self.P @ h.T
         excess = 0.5 * float(y @ y - hph[0, 0] - hph[1, 1]) - var
         self._adapt_n += 1
         lv = self.linear_var + max(ADAPT_GAIN, 1.0 / self._adapt_n) * excess  # a mean at first
-        self.linear_var = min(max(lv, LINEAR_FLOOR**2), LINEAR_CEILING**2)
+        self.linear_var = min(max(lv, LINEAR_FLOOR**2), self.linear_max**2)
         # the reference follows |a| slowly whatever the motion (linear acceleration averages
         # out over tens of seconds; a first interval may have caught a vibration's crest)
         self._g0_n += 1
         self._g0 = g0 + max(G0_GAIN, 1.0 / self._g0_n) * (g - g0)  # a plain mean at first
-        # the bias about the vertical is learned from gravity only while the platform is steady:
-        # it shows in gravity only through the body's changing lean, faintly, and under linear
-        # acceleration the innovations are systematic for seconds: that faint coupling would
-        # integrate them into a wrong bias, and the heading with it
-        steady = self.linear_var <= LINEAR_STEADY**2
-        if self._update(h, y, _I2 * var, 2, learn_bias=steady):
+        # what gravity may teach the bias: nothing while the linear acceleration's level is
+        # still unknown (at the start a drone's holding accelerations would be learned as a
+        # bias that stays wrong for tens of seconds); all of it while the platform is steady;
+        # else its horizontal components alone, which show in the tilt itself: the vertical one
+        # shows only through the body's changing lean, faintly, and under linear acceleration
+        # the innovations are systematic for seconds: that faint coupling would integrate them
+        # into a wrong bias, and the heading with it
+        if self._adapt_n < STEADY_AFTER:
+            learn = Learn.IF_CONSISTENT
+        elif self.linear_var <= LINEAR_STEADY**2:
+            learn = Learn.ALL
+        else:
+            learn = Learn.HORIZONTAL
+        if self._update(h, y, _I2 * var, 2, learn):
             self.counters.accel_updates += 1
             self._rejected_s = 0.0
             self.state = OrientState.RUNNING
@@ -527,10 +553,10 @@ class OrientationFilter:
         else:
             self.counters.mag_rejected += 1
 
-    def _update(self, h: F64, y: F64, r: F64, dof: int, learn_bias: bool = True) -> bool:
+    def _update(self, h: F64, y: F64, r: F64, dof: int, learn: Learn = Learn.ALL) -> bool:
         """A Kalman update with the chi-squared gate; False (and nothing changed) if rejected.
-        `learn_bias` False: the bias states are considered, not estimated (a Schmidt update:
-        their gain is zero, the covariance stays consistent)."""
+        `learn` below ALL: the states it leaves out are considered, not estimated (a Schmidt
+        update: their gain is zero, the covariance stays consistent)."""
         P = self.P
         ph = P @ h.T
         s = h @ ph + r
@@ -542,13 +568,20 @@ class OrientationFilter:
         if not nis <= gate:
             return False
         k = ph @ s_inv
-        if learn_bias:
+        if learn is Learn.IF_CONSISTENT:
+            learn = Learn.ALL if nis <= CHI2_2DOF_95 else Learn.NOTHING
+        if learn is Learn.ALL:
             p = P - k @ ph.T
         else:
-            # the bias along the body's vertical is not learned; the horizontal components
-            # show in the tilt itself, through the linear acceleration's state, and still are
-            u = self._body_up()
-            k[3:6] -= np.outer(u, u @ k[3:6])
+            if learn is Learn.NOTHING:
+                k[3:6] = 0.0
+            else:  # not the bias along the body's vertical
+                u = self._body_up()
+                k[3:6] -= np.outer(u, u @ k[3:6])
+            if not self.heading_known:
+                # nor the heading through its correlation with the tilt (with no magnetometer
+                # to measure it): it would follow the acceleration taken for gravity too
+                k[2] = 0.0
             ikh = _I8 - k @ h
             p = ikh @ P @ ikh.T + k @ r @ k.T
         dx = k @ y

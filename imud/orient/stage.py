@@ -68,6 +68,7 @@ class OrientationStage:
             use_mag=s.magnetometer,
             declination_rad=math.radians(s.declination_deg),
             init_s=s.start_s,
+            linear_max=s.linear_accel_max_m_s2,
         )
 
     def _zero_rate(self, mean: F64, var: F64) -> None:
