@@ -352,6 +352,16 @@ def _joined(chunks: Iterator[Chunk]) -> Iterator[Chunk]:
         yield out()
 
 
+_END = object()  # the reading thread's last item
+
+
+@dataclass(frozen=True)
+class _Failed:
+    """What the reading thread raised, handed to the caller's thread to raise there."""
+
+    error: BaseException
+
+
 def _prefetched(chunks: Iterator[Chunk], depth: int = 4) -> Iterator[Chunk]:
     """The chunks read on another thread, `depth` ahead: parsing (pyarrow, zstd, NumPy's
     gathers) and the Allan sums (NumPy) both run mostly without the GIL, so on two cores a
@@ -360,10 +370,10 @@ def _prefetched(chunks: Iterator[Chunk], depth: int = 4) -> Iterator[Chunk]:
     import queue
     import threading
 
-    q: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=depth)
+    q: queue.Queue[Any] = queue.Queue(maxsize=depth)
     stop = threading.Event()
 
-    def put(item: tuple[str, Any]) -> bool:
+    def put(item: Any) -> bool:
         while not stop.is_set():
             try:
                 q.put(item, timeout=0.1)
@@ -375,21 +385,21 @@ def _prefetched(chunks: Iterator[Chunk], depth: int = 4) -> Iterator[Chunk]:
     def read() -> None:
         try:
             for c in chunks:
-                if not put(("chunk", c)):
+                if not put(c):
                     return
-            put(("end", None))
+            put(_END)
         except BaseException as e:  # raised again on the caller's thread
-            put(("error", e))
+            put(_Failed(e))
 
     t = threading.Thread(target=read, name="imud-noise-read", daemon=True)
     t.start()
     try:
         while True:
-            kind, item = q.get()
-            if kind == "end":
+            item = q.get()
+            if item is _END:
                 return
-            if kind == "error":
-                raise item
+            if isinstance(item, _Failed):
+                raise item.error
             yield item
     finally:
         stop.set()
