@@ -43,6 +43,8 @@ def config_summary(cfg: ImudConfig, path: str) -> list[str]:
         else:
             sim = "hardware"
         extra = f", calibration {dev.calibration}" if dev.calibration else ""
+        if dev.orientation.enabled:
+            extra += ", orientation filter"
         rows.append(
             [
                 dev.name,

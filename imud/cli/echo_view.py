@@ -32,12 +32,13 @@ def arrivals(sub: Any, idle_s: float) -> Iterator[Batch | None]:
         yield None if sample is None else decode(sample.payload.to_bytes())
 
 
-_AXES = {1: "", 3: " x y z", 4: " w x y z"}
+_AXES = {1: "", 3: " x y z", 4: " w x y z", 6: " xx xy xz yy yz zz"}
 
 
 def _value_format(unit: str) -> str:
-    """How wide and precise one value of a channel in `unit` prints (tesla needs exponents)."""
-    return {"T": "+10.3e", "degC": "7.2f", "1": "+7.4f"}.get(unit, "+9.4f")
+    """How wide and precise one value of a channel in `unit` prints (tesla and a covariance in
+    rad^2 need exponents)."""
+    return {"T": "+10.3e", "rad^2": "+10.3e", "degC": "7.2f", "1": "+7.4f"}.get(unit, "+9.4f")
 
 
 def _flag_names(flags: int) -> str:
