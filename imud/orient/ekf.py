@@ -47,6 +47,7 @@ CHI2_3DOF_999 = 16.266
 # how fast the linear acceleration's variance follows the innovations (per correction): about
 # twenty corrections, two seconds at the default rate
 ADAPT_GAIN = 0.05
+WHITE_GAIN = 0.05  # per correction: the innovations' white scatter, over about twenty
 LINEAR_FLOOR = 0.001  # m/s^2: never assumed steadier than this
 # m/s^2: the most linear acceleration taken as the platform's own (a state); beyond, an
 # acceleration is an outlier the innovation gate rejects, so a car's 3 m/s^2 turn is ridden
@@ -276,6 +277,8 @@ class OrientationFilter:
         self._adapt_n = 0  # corrections the linear acceleration's variance has followed
         self._mag_ref: float | None = None  # |B| at the start, T
         self._rejected_s = 0.0
+        self._prev_y: F64 | None = None  # the last gravity innovation
+        self._white_var = 0.0  # its steps' variance per axis, m^2/s^4
         self._iv = _Interval()
         self._pending_zero_rate: list[tuple[F64, F64]] = []
 
@@ -477,11 +480,21 @@ class OrientationFilter:
         # shown beyond it lately (vibration the average did not cancel, linear acceleration),
         # and |a| away from gravity (linear acceleration of that size, now)
         var = self.noise.accel**2 / t + (g - g0) ** 2
+        y = mean[:2] - self.a
+        # what the interval means scatter by from one to the next beyond the datasheet's white
+        # noise (a vibration the mean did not cancel) is white noise too: measured by the
+        # innovations' steps, which a slow acceleration hardly moves, it goes into the
+        # measurement's noise, and only what is left (the slow part) into the linear
+        # acceleration's state
+        if self._prev_y is not None:
+            d = y - self._prev_y
+            self._white_var += WHITE_GAIN * (0.25 * float(d @ d) - self._white_var)
+        self._prev_y = y
+        var = max(var, self._white_var)
         gm = np.array([[0.0, -g, 0.0], [g, 0.0, 0.0]])
         dt = iv.t / max(iv.steps, 1)
         a2 = (_FORM @ iv.kqq).reshape(3, 3) * dt
         h = np.hstack([gm, gm @ (a2 / iv.n), _I2])
-        y = mean[:2] - self.a
         # covariance matching: the innovations' spread beyond what the filter predicts is the
         # platform's linear acceleration (or vibration the average did not cancel); its
         # variance follows, within [LINEAR_FLOOR, linear_max], rejected intervals included
