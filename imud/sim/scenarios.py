@@ -150,7 +150,9 @@ def _small_quat(phi: F64) -> F64:
     return np.column_stack([np.cos(th / 2), phi * s[:, None]])
 
 
-def reference(seed: int = 0, seconds: float = 60.0) -> Scenario:
+def reference(
+    seed: int = 0, seconds: float = 60.0, bias_deg_s: tuple[float, float, float] | None = None
+) -> Scenario:
     """The fusion anchors' scenario (docs/orientation.md: where its figures for Fusion, Madgwick
     and Mahony come from)."""
 
@@ -161,12 +163,17 @@ def reference(seed: int = 0, seconds: float = 60.0) -> Scenario:
         return roll, pitch, yaw
 
     return make(
-        "reference", euler, seconds, 1000.0, bias_deg_s=(0.5, -0.5, 0.5),
+        "reference", euler, seconds, 1000.0, bias_deg_s=bias_deg_s or (0.5, -0.5, 0.5),
         gyro_density=0.005 * DEG, accel_density=400 * MICRO_G, seed=seed,
     )  # fmt: skip
 
 
-def drone_hover(seed: int = 0, seconds: float = 60.0, mag: bool = False) -> Scenario:
+def drone_hover(
+    seed: int = 0,
+    seconds: float = 60.0,
+    mag: bool = False,
+    bias_deg_s: tuple[float, float, float] | None = None,
+) -> Scenario:
     """A multirotor holding position: a few degrees of slow attitude corrections, a slow yaw,
     and its motors' 100 Hz vibration (with the 200 Hz harmonic) shaking the sensor: 4 m/s^2 of
     linear and 20 deg/s of angular vibration, plus the small accelerations that hold it in place."""
@@ -204,14 +211,19 @@ def drone_hover(seed: int = 0, seconds: float = 60.0, mag: bool = False) -> Scen
         )  # fmt: skip
 
     return make(
-        "drone_hover", euler, seconds, 1000.0, bias_deg_s=(0.4, -0.3, 0.5),
+        "drone_hover", euler, seconds, 1000.0, bias_deg_s=bias_deg_s or (0.4, -0.3, 0.5),
         gyro_density=0.005 * DEG, accel_density=400 * MICRO_G, seed=seed,
         linear=hold, vibration=shake, angular_vibration=wobble,
         mag_sigma=0.3e-6 if mag else None,
     )  # fmt: skip
 
 
-def car(seed: int = 0, seconds: float = 60.0, mag: bool = False) -> Scenario:
+def car(
+    seed: int = 0,
+    seconds: float = 60.0,
+    mag: bool = False,
+    bias_deg_s: tuple[float, float, float] | None = None,
+) -> Scenario:
     """A car driving a loop: accelerating at 3 m/s^2, cruising, turning (the centripetal
     acceleration, v x yaw rate, is sustained for seconds), braking; the body pitches and rolls
     against those accelerations and the road shakes it (15 Hz, 1 m/s^2)."""
@@ -255,7 +267,7 @@ def car(seed: int = 0, seconds: float = 60.0, mag: bool = False) -> Scenario:
         )  # fmt: skip
 
     return make(
-        "car", euler, seconds, 1000.0, bias_deg_s=(-0.3, 0.4, 0.5),
+        "car", euler, seconds, 1000.0, bias_deg_s=bias_deg_s or (-0.3, 0.4, 0.5),
         gyro_density=0.005 * DEG, accel_density=400 * MICRO_G, seed=seed,
         linear=linear, vibration=road, mag_sigma=0.3e-6 if mag else None,
     )  # fmt: skip
