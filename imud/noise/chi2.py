@@ -14,10 +14,13 @@ WH_ABOVE = 2000.0
 _EPS = 1e-13
 
 
-def _gamma_p(a: float, x: float) -> float:
-    """P(a, x) = gamma(a, x) / Gamma(a), the regularised lower incomplete gamma function."""
+def gamma_pq(a: float, x: float) -> tuple[float, float]:
+    """(P, Q): the regularised lower and upper incomplete gamma functions at (a, x), each
+    computed on the side where it converges fast (the series for P below a + 1, the continued
+    fraction for Q above, modified Lentz), so a small tail keeps its relative accuracy. The
+    calibration's acceptance tests (imud.calib.stats) use the same."""
     if x <= 0.0:
-        return 0.0
+        return 0.0, 1.0
     lead = math.exp(-x + a * math.log(x) - math.lgamma(a))
     if x < a + 1.0:  # the series converges fast here
         term = total = 1.0 / a
@@ -28,8 +31,8 @@ def _gamma_p(a: float, x: float) -> float:
             total += term
             if abs(term) < abs(total) * _EPS:
                 break
-        return min(1.0, total * lead)
-    # the continued fraction for Q = 1 - P (modified Lentz)
+        p = min(1.0, total * lead)
+        return p, max(0.0, 1.0 - p)
     tiny = 1e-300
     b = x + 1.0 - a
     c = 1.0 / tiny
@@ -47,14 +50,15 @@ def _gamma_p(a: float, x: float) -> float:
         h *= step
         if abs(step - 1.0) < _EPS:
             break
-    return max(0.0, 1.0 - lead * h)
+    q = min(1.0, lead * h)
+    return max(0.0, 1.0 - q), q
 
 
 def chi2_cdf(x: float, k: float) -> float:
     """P(X <= x) for X chi-squared with k (> 0, not necessarily whole) degrees of freedom."""
     if not k > 0:
         raise ValueError(f"{k} degrees of freedom: must be positive")
-    return _gamma_p(k / 2.0, x / 2.0)
+    return gamma_pq(k / 2.0, x / 2.0)[0]
 
 
 def _norm_ppf(p: float) -> float:
