@@ -277,12 +277,15 @@ def _is_mcap(path: Path) -> bool:
 def _datasheet(rec: Any, device: str) -> dict[str, float] | None:
     """The recorded chip's one-sided densities at its recorded settings (None: not known)."""
     found = rec.daemon_config()
-    if found is None:
-        return None
+    return None if found is None else _densities(found[0], found[1], device)
+
+
+def _densities(config: dict[str, Any], cal: dict[str, str], device: str) -> dict[str, float] | None:
+    """A device's datasheet densities at the settings a daemon config (a table) gives it."""
     from imud import registry
     from imud.recording.daemoncfg import DaemonConfig
 
-    cfg = DaemonConfig(*found)
+    cfg = DaemonConfig(config, cal)
     try:
         if cfg.config is None:
             return None
@@ -748,21 +751,9 @@ def _live(device: str, duration: float, endpoint: str, prefix: str, as_json: boo
 def _live_datasheet(session: Any, prefix: str, device: str) -> dict[str, float] | None:
     """The chip's densities from the daemon's own config (None when it does not say)."""
     try:
-        from imud import registry
-        from imud.recording.daemoncfg import DaemonConfig
         from imud.session import get_config
 
         view = get_config(session, prefix, timeout=2.0)
-        cfg = DaemonConfig(view.get("config") or {}, {})
-        try:
-            dev = next((d for d in (cfg.config.device if cfg.config else [])
-                        if d.name == device), None)  # fmt: skip
-            spec = registry.CHIPS.get(dev.chip) if dev is not None else None
-            if dev is None or spec is None or spec.noise is None:
-                return None
-            nf = spec.noise(dev)
-            return {"gyro": nf.gyro_density, "accel": nf.accel_density}
-        finally:
-            cfg.close()
+        return _densities(view.get("config") or {}, {}, device)
     except Exception:  # the figures are a comparison only: the analysis goes on without them
         return None
