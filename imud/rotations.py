@@ -72,6 +72,32 @@ def quat_rotate(q: F64, v: F64) -> F64:
     return out
 
 
+def quat_exp(phi: F64, th2: F64 | None = None) -> F64:
+    """exp of rotation vectors (m, 3) as unit quaternions (m, 4); `th2`: their squared norms,
+    when the caller has them."""
+    if th2 is None:
+        th2 = np.einsum("ij,ij->i", phi, phi)
+    th = np.sqrt(th2)
+    half = 0.5 * th
+    out = np.empty((phi.shape[0], 4))
+    out[:, 0] = np.cos(half)
+    # sin(th/2)/th -> 1/2 as th -> 0; at th = 0 exactly phi is 0 and so is the product
+    out[:, 1:] = phi * (np.sin(half) / (th + 1e-300))[:, None]
+    return out
+
+
+def quat_to_matrix(q: F64) -> F64:
+    """The rotation matrix of one unit quaternion (4,)."""
+    w, x, y, z = q.tolist()
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
 def quat_from_axis_angle(axis: F64, angle_rad: float) -> F64:
     """The rotation by `angle_rad` about the unit vector `axis`."""
     half = 0.5 * angle_rad

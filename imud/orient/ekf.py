@@ -38,6 +38,8 @@ from enum import Enum, StrEnum
 import numpy as np
 import numpy.typing as npt
 
+from imud.rotations import quat_exp, quat_to_matrix
+
 F64 = npt.NDArray[np.float64]
 
 CHI2_2DOF_999 = 13.816  # innovation gate: chi-squared 2 dof, upper tail 1e-3
@@ -103,19 +105,6 @@ class Counters:
     recoveries: int = 0
 
 
-def _quat_exp(phi: F64, th2: F64 | None = None) -> F64:
-    """exp of rotation vectors (m, 3) as unit quaternions (m, 4)."""
-    if th2 is None:
-        th2 = np.einsum("ij,ij->i", phi, phi)
-    th = np.sqrt(th2)
-    half = 0.5 * th
-    out = np.empty((phi.shape[0], 4))
-    out[:, 0] = np.cos(half)
-    # sin(th/2)/th -> 1/2 as th -> 0; at th = 0 exactly phi is 0 and so is the product
-    out[:, 1:] = phi * (np.sin(half) / (th + 1e-300))[:, None]
-    return out
-
-
 def _rotation_form() -> F64:
     """C (9, 16): R(e).ravel() = C @ (e outer e).ravel() for a unit quaternion e, so sums of
     rotation matrices (and of rotated vectors) over a chunk are sums of e outer e."""
@@ -168,23 +157,6 @@ def _left(q: F64) -> F64:
     """L(q): q x p = L(q) p for quaternions as columns."""
     w, x, y, z = q.tolist()
     return np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
-
-
-def rotation(q: F64) -> F64:
-    """The rotation matrix (body -> world) of a unit quaternion (4,)."""
-    w, x, y, z = q.tolist()
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def _skew(v: F64) -> F64:
-    x, y, z = v.tolist()
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def _inverse(s: F64) -> F64 | None:
@@ -353,7 +325,7 @@ class OrientationFilter:
             [tilt_var, tilt_var, 0.0] + [self.bias_sigma**2] * 3 + [self.linear_var] * 2
         )
         if iv.m_n and self.use_mag:
-            m = rotation(self.q) @ (iv.m_sum / iv.m_n)
+            m = quat_to_matrix(self.q) @ (iv.m_sum / iv.m_n)
             bh = math.hypot(float(m[0]), float(m[1]))
             if bh > 0.0:
                 self._rotate_world(np.array([0.0, 0.0, self._north(m)]))
@@ -372,7 +344,7 @@ class OrientationFilter:
     def _seed_tilt(self, mean: F64, span_s: float) -> None:
         yaw = 0.0
         if self.state is not OrientState.INITIALISING:
-            r = rotation(self.q)
+            r = quat_to_matrix(self.q)
             yaw = math.atan2(r[1, 0], r[0, 0])
         q = tilt_quaternion(mean)
         if yaw:
@@ -402,7 +374,7 @@ class OrientationFilter:
             c = np.cumsum(theta, axis=0)
             x, y, z = c[-1].tolist()
         th2 = np.einsum("ij,ij->i", c, c)
-        e = _quat_exp(c, th2)  # each sample's rotation since the chunk began (first order)
+        e = quat_exp(c, th2)  # each sample's rotation since the chunk began (first order)
         left = _left(self.q)
         q = e @ left.T
         q_out[:] = q
@@ -447,7 +419,7 @@ class OrientationFilter:
         if not ok.any():
             return
         # the magnetometer is slow and coarse: each reading rotated by its sample's orientation
-        r = rotation(q[ok][len(q[ok]) // 2])
+        r = quat_to_matrix(q[ok][len(q[ok]) // 2])
         self._iv.m_sum += r @ mag[ok].sum(axis=0)
         self._iv.m_n += int(ok.sum())
 

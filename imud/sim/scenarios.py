@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from imud.rotations import quat_mul
+from imud.rotations import quat_conj, quat_exp, quat_mul, quat_rotate
 
 F64 = npt.NDArray[np.float64]
 G = 9.80665
@@ -88,11 +88,7 @@ def body_rate(euler: Euler, t: F64, h: float = 1e-5) -> F64:
 
 def to_body(q: F64, v: F64) -> F64:
     """World vectors (n, 3) in the body frame of each q (n, 4)."""
-    w = q[:, :1]
-    r = -q[:, 1:]  # the inverse rotation
-    t = 2.0 * np.cross(r, v)
-    out: F64 = v + w * t + np.cross(r, t)
-    return out
+    return quat_rotate(quat_conj(q), v)
 
 
 def make(
@@ -124,7 +120,7 @@ def make(
         # a rate added in the body frame: its angle (the integral) rotates the truth too
         wobble = angular_vibration(half)
         angle: F64 = np.cumsum(wobble, axis=0) * dt
-        truth = quat_mul(truth, _small_quat(angle))
+        truth = quat_mul(truth, quat_exp(angle))
         rate = rate + wobble  # to first order in the (small) vibration angle
     bias = np.array(bias_deg_s) * DEG
     gyro = rate + bias + rng.normal(0.0, gyro_density * math.sqrt(rate_hz), (n, 3))
@@ -142,12 +138,6 @@ def make(
         name, rate_hz, t, truth, gyro, accel, mag, bias, gyro_density, accel_density,
         mag_sigma, lin,
     )  # fmt: skip
-
-
-def _small_quat(phi: F64) -> F64:
-    th = np.linalg.norm(phi, axis=1)
-    s = np.where(th > 1e-12, np.sin(th / 2) / np.where(th > 1e-12, th, 1.0), 0.5)
-    return np.column_stack([np.cos(th / 2), phi * s[:, None]])
 
 
 def reference(
