@@ -67,6 +67,8 @@ TOY_ID = 0x5A
 TOY_RATES = (100, 200, 400)
 DUMMY = 2
 SAMPLE = 12  # gyro xyz then mag xyz, int16 big-endian
+EMPTY = -32768  # the word a read past the FIFO's end gives
+EMPTY_WORD = EMPTY.to_bytes(2, "big", signed=True)
 GYRO_LSB_DPS = 0.01  # 100 LSB per deg/s
 MAG_LSB_T = 1e-8  # 10 nT per LSB
 FIFO_SAMPLES = 64
@@ -169,7 +171,11 @@ class ToyDriver:
         if n == 0:
             return self._batch(tb, ta)
         data = self.dev.read(ToyReg.FIFO_DATA, n * SAMPLE)
-        return self._batch(tb, ta, np.frombuffer(data, ">i2").reshape(n, 6))
+        words = np.frombuffer(data, ">i2").reshape(n, 6)
+        empty = (words == EMPTY).all(axis=1)
+        if empty.any():  # the FIFO ran dry under the read (a reset): what follows is not data
+            words = words[: int(np.argmax(empty))]
+        return self._batch(tb, ta, words)
 
     def stop(self) -> None:
         self.dev.write_u8(ToyReg.CTRL, 0)
@@ -241,7 +247,9 @@ class ToySim:
         if register == ToyReg.FIFO_DATA:
             out = bytes(self.fifo[:length])
             del self.fifo[:length]
-            return out.ljust(length, b"\0")
+            # read past its end (a brown-out emptied it between the count and the read): the
+            # empty-FIFO word, as InvenSense parts return it
+            return out + EMPTY_WORD * ((length - len(out)) // 2)
         if register == ToyReg.STATUS:
             count = (len(self.fifo) // SAMPLE).to_bytes(2, "little")
             return (bytes([self.regs[ToyReg.STATUS]]) + count)[:length]
