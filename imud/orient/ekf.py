@@ -2,29 +2,30 @@
 Kalman filter with gyro-bias states, run on NumPy batches.
 
 State: the orientation q (unit quaternion w, x, y, z; rotates body vectors into the world frame,
-ENU, z up) and the gyro bias b (rad/s). Error state (6): a small rotation dtheta in the *world*
-frame (q_true = exp(dtheta) q) and db = b_true - b. World-frame errors keep the heading error
-apart from the tilt errors: without a magnetometer the heading is unobservable and its
-variance grows without bound, and in world coordinates that growth never leaks into the tilt.
+ENU, z up), the gyro bias b (rad/s) and the platform's horizontal linear acceleration a (world,
+m/s^2). Error state (8): a small rotation dtheta in the *world* frame (q_true = exp(dtheta) q),
+db = b_true - b, and da. World-frame errors keep the heading error apart from the tilt errors:
+without a magnetometer the heading is unobservable and its variance grows without bound, and in
+world coordinates that growth never leaks into the tilt.
 
-Prediction runs at the full sample rate, a batch at a time. Within a chunk of m samples the
-rotation since the chunk began is a second-order rotation vector (the running sum of the
-increments plus half the running sum of prefix x increment, the first term of Bortz's coning
-correction), so the orientation of every sample is a few array operations on the chunk, not a
-Python loop. The world-frame error moves only through the bias, d(dtheta)/dt = -R db, so the
-covariance needs just sum(R_k dt) over the chunk.
+Prediction runs at the full sample rate, a batch at a time. Within a chunk each sample's
+rotation since the chunk began is the running sum of the increments (one array operation for
+the chunk, not a Python loop); the chunk's end, which the next chunk starts from, adds the
+second-order (coning) term. The world-frame error moves only through the bias,
+d(dtheta)/dt = -R db, so the covariance needs just sums of the samples' rotation matrices, kept
+exactly as sums of q outer q.
 
 Correction runs at `update_hz`: the accelerometer samples of the interval are rotated into the
 world frame with the orientation of their own instants and averaged, so a platform turning
 during the interval still yields one gravity direction, and the noise of the average is the
 accelerometer's low-frequency density over the interval's length (correct even behind a
-low-pass filter that correlates the samples). Linear acceleration and vibration are not
-noise the datasheet knows: the interval's own scatter beyond the datasheet's and the departure
-of |a| from gravity inflate the measurement's variance, and an innovation beyond the
-chi-squared gate (2 dof) is rejected outright; after `recovery_s` of rejections the tilt is
-re-seeded from the accelerometer (a filter started while moving would otherwise never agree).
-The magnetometer corrects heading only (its horizontal direction, with the tilt's coupling
-through the dip), and a field whose magnitude or dip departs from the reference is rejected.
+low-pass filter that correlates the samples). Linear acceleration is a first-order
+Gauss-Markov state whose variance follows the innovations up to a ceiling; beyond it an
+innovation fails the chi-squared gate and the gyro carries the orientation. The innovations'
+step-to-step scatter (vibration the means did not cancel) and |a| away from gravity add to the
+measurement's noise; after `recovery_s` of rejections the tilt is re-seeded from the
+accelerometer. The magnetometer corrects heading (its horizontal direction, with the tilt's
+coupling through the dip); a field whose magnitude departs from the reference is rejected.
 While the device rests, a still window's mean gyro is a direct measurement of the bias
 (`zero_rate`), fed from the gyro-bias tracker's stillness tests: one bias estimate, not two.
 """
@@ -585,7 +586,3 @@ class OrientationFilter:
         e = _quat_exp1(*dtheta.tolist())
         q = _left(e) @ self.q
         self.q = q / math.sqrt(float(q @ q))
-
-    @property
-    def orientation(self) -> F64:
-        return self.q.copy()
