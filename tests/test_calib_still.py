@@ -271,7 +271,35 @@ def test_a_slow_tilt_is_caught_by_the_gravity_direction() -> None:
     assert "turned slowly by 0.9" in check.reason or "turned slowly by 1.0" in check.reason
 
 
+def test_a_still_low_passed_recording_is_refused_no_more_often_than_the_significance() -> None:
+    """The slow-turn test's false refusals: 3 s still captures at 500 Hz whose noise went
+    through a [1, 2, 1] / 4 low-pass (lag-1 correlation 2/3, as a 98 Hz DLPF at 500 Hz gives).
+    At significance 0.01, 1000 captures give ~10 refusals (P(more than 20) ~ 0.1 %); a noise
+    estimate blind to the correlation refuses about three times as many."""
+    rng = np.random.default_rng(21)
+    fs, n, sigma = 500.0, 1500, 0.04
+    t_ns = (np.arange(n) * 1e9 / fs).astype(np.int64)
+    refused = 0
+    for _ in range(1000):
+        e = rng.normal(0.0, sigma, (n + 2, 6))
+        x = (e[:-2] + 2 * e[1:-1] + e[2:]) / 4
+        accel = x[:, :3] + np.array([0.0, 0.0, 9.81])
+        rec = Recording(t_ns, accel, x[:, 3:] * 0.01)
+        refused += not check_still(rec).still
+    assert refused <= 20
+
+
 def test_too_short_a_recording_is_refused() -> None:
     rec = still_recording(0.05, seed=12)
     with pytest.raises(CalibrationRefused, match="too few"):
         find_still(rec)
+
+
+def test_a_gyro_capture_that_turned_slowly_is_refused_with_the_turn_named() -> None:
+    """Not still and not a set of poses with turns between: the refusal says what moved (the
+    still check's finding), not only that too few poses were found."""
+    from imud.calib.procedure import run_gyro
+
+    s = session([(X, np.radians(1.0))], seed=11, fs=200.0, still_s=[0.0, 0.0], move_s=60.0)
+    with pytest.raises(CalibrationRefused, match=r"turned slowly by (0\.9|1\.0).*found [01]\)"):
+        run_gyro(s.rec, full_turns=False)

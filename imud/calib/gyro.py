@@ -160,7 +160,7 @@ def fit_gyro_bias(
 
     reasons: list[str] = []
     ok = True
-    check = check_still(rec)
+    check = check_still(rec, significance)
     if not check.still:
         ok = False
         reasons.append(check.reason)

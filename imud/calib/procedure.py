@@ -454,7 +454,10 @@ def run_gyro(
     rec = rec if gyro_only else _gravity_corrected(rec, cf, notes)
     original = rec  # the accelerometer corrected, the gyro as recorded
     gsens = None
-    if check_still(rec).still:
+    if acceptance is not None:
+        significance = acceptance.significance
+    check = check_still(rec, significance)
+    if check.still:
         est = fit_gyro_bias(rec, latitude_deg, significance, acceptance)
         still = [interval_stats(rec, 0, rec.n)]
         if gyro_only:
@@ -469,6 +472,12 @@ def run_gyro(
             "only the accelerometer gives; record it too (or record the gyro still for its bias)"
         )
     else:
+        poses = find_still(rec, min_s=min_still_s)
+        if len(poses) < 2:  # neither a bias capture nor poses with turns between: say both
+            raise CalibrationRefused(
+                f"{check.reason}; nor does it hold the still poses with turns between them that "
+                f"the full gyro fit needs (found {len(poses)})"
+            )
         if cf is None or cf.accel is None:
             notes.append(
                 "no accelerometer calibration in the file: the raw accelerometer's scale and "
@@ -481,8 +490,8 @@ def run_gyro(
         bias = None
         if gsens is not None and gsens.included and latitude_deg is None:
             bias = _bias_estimate(gsens)
-        est = _fit_full(rec, full_turns, min_still_s, latitude_deg, significance, acceptance, bias)
         still = find_still(rec, min_s=min_still_s)
+        est = _fit_full(rec, full_turns, min_still_s, latitude_deg, significance, acceptance, bias)
     report = affine_report(est)
     report["notes"] = notes
     if gsens is not None:

@@ -582,7 +582,8 @@ def _significance(f: Any) -> Any:
         type=click.FloatRange(min=1e-12, max=0.5),
         default=0.01,
         show_default=True,
-        help="chance of refusing a right calibration by chance (the residual test's p threshold)",
+        help="chance of refusing a right calibration by chance (the p threshold of the residual "
+        "tests and of the still check's slow-turn test)",
     )(f)
 
 
