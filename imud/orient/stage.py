@@ -76,10 +76,7 @@ class OrientationStage:
 
     def reset_bias(self) -> None:
         """A new calibration: the bias learned was relative to the old one."""
-        self.filter.b = np.zeros(3)
-        self.filter.P[3:6, :] = 0.0
-        self.filter.P[:, 3:6] = 0.0
-        self.filter.P[3:6, 3:6] = np.eye(3) * self.settings.gyro_bias_sigma_rad_s**2
+        self.filter.reset_bias(self.settings.gyro_bias_sigma_rad_s)
 
     def run(
         self, channels: dict[Channel, F64], period_s: float, lost_before: int

@@ -121,7 +121,11 @@ def make(
         wobble = angular_vibration(half)
         angle: F64 = np.cumsum(wobble, axis=0) * dt
         truth = quat_mul(truth, quat_exp(angle))
-        rate = rate + wobble  # to first order in the (small) vibration angle
+        # the body rate of the rotation exp(angle) is d(angle)/dt - angle x d(angle)/dt / 2 to
+        # second order (Bortz): the cross term is the coning a shake about two axes out of
+        # phase makes, a steady turn the gyro measures and the truth holds
+        mid = angle - 0.5 * wobble * dt
+        rate = rate + wobble - 0.5 * np.cross(mid, wobble)
     bias = np.array(bias_deg_s) * DEG
     gyro = rate + bias + rng.normal(0.0, gyro_density * math.sqrt(rate_hz), (n, 3))
     lin: F64 = np.zeros((n, 3)) if linear is None else linear(t)
