@@ -16,20 +16,13 @@ d(dtheta)/dt = -R db, so the covariance needs just sums of the samples' rotation
 exactly as sums of q outer q.
 
 Correction runs at `update_hz`: the accelerometer samples of the interval are rotated into the
-world frame with the orientation of their own instants and averaged under a tapered window, so
-a platform turning during the interval still yields one gravity direction, a vibration leaks
-less into it, and the noise of the average is the accelerometer's low-frequency density over
-the interval's length (correct even behind a low-pass filter that correlates the samples).
-
-Two models interact (an IMM): a steady platform, whose linear acceleration is a first-order
-Gauss-Markov state with a variance that follows the innovations up to a ceiling, and a
-manoeuvring one, for which gravity's reading says next to nothing (a car's turn, braking).
-Each keeps its own error estimate and covariance about the one nominal state; they are mixed
-before each prediction, weighted by how well each predicted the readings, and what is reported
-is their mixture, the spread between them included. So the first correction after a turn
-neither trusts the acceleration still there nor ignores gravity for long, and the steady
-model's noise levels learn from the steady intervals only. The innovations' scatter from one
-interval to the next (vibration the means did not cancel) and |a| away from gravity add to the
+world frame with the orientation of their own instants and averaged, so a platform turning
+during the interval still yields one gravity direction, and the noise of the average is the
+accelerometer's low-frequency density over the interval's length (correct even behind a
+low-pass filter that correlates the samples). Linear acceleration is a first-order
+Gauss-Markov state whose variance follows the innovations up to a ceiling; beyond it an
+innovation fails the chi-squared gate and the gyro carries the orientation. The innovations'
+step-to-step scatter (vibration the means did not cancel) and |a| away from gravity add to the
 measurement's noise; after `recovery_s` of rejections the tilt is re-seeded from the
 accelerometer. The magnetometer corrects heading (its horizontal direction, with the tilt's
 coupling through the dip); a field whose magnitude departs from the reference is rejected.
@@ -42,7 +35,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import Enum, StrEnum
-from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -58,27 +50,12 @@ CHI2_3DOF_999 = 16.266
 # how fast the linear acceleration's variance follows the innovations (per correction): about
 # twenty corrections, two seconds at the default rate
 ADAPT_GAIN = 0.05
-# the correction's window: half a plain mean, half Welch's. A plain mean (a boxcar) lets a
-# vibration leak into gravity at up to -13 dB, falling as 1/f, and from one interval to the next
-# that leak alternates, which the filter takes for white noise it is not (its covariance then
-# grows conservative); Welch's window leaks below -21 dB, falling as 1/f^2, but its white noise
-# is 19 % larger. Half of each: the leak of a vibration 10 intervals' frequency or more is
-# halved or better, for 5 % more white noise (the reference scenario's heading drift stays at
-# its target; Welch's alone took it over)
-WINDOW_TAPER = 0.5
-ADAPT_CLIP = 8.0  # an interval's excess counts up to this many times its predicted variance
 WHITE_GAIN = 0.05  # per correction: the innovations' white scatter, over about twenty
 LINEAR_FLOOR = 0.001  # m/s^2: never assumed steadier than this
 # m/s^2: the most linear acceleration taken as the platform's own (a state); beyond, an
 # acceleration is an outlier the innovation gate rejects, so a car's 3 m/s^2 turn is ridden
 # through on the gyro instead of tilting the estimate (the daemon's `linear_accel_max_m_s2`)
 LINEAR_CEILING = 0.2
-# the manoeuvring model's horizontal linear acceleration (m/s^2, its standard deviation): a
-# car's turns and braking, a drone's holding accelerations
-LINEAR_MANOEUVRE = 3.0
-# per correction: the chance the platform starts manoeuvring, and stops
-TO_MANOEUVRE = 0.02
-TO_STEADY = 0.05
 G0_GAIN = 0.003  # the reference |gravity| follows |a| over about thirty seconds
 STEADY_AFTER = 12  # corrections (two seconds at the default rate)
 LINEAR_STEADY = 0.05  # m/s^2: at most this much linear acceleration, the bias learns from gravity
@@ -165,37 +142,17 @@ def _quat_exp1(x: float, y: float, z: float) -> F64:
     return np.array([math.cos(0.5 * th), x * s, y * s, z * s])
 
 
-_INDICES: dict[tuple[int, int], F64] = {}
+_WEIGHTS: dict[int, F64] = {}
 
 
-def _indices(m: int, k0: int) -> F64:
-    """(2, m): ones and k0..k0+m-1 (the samples' indices in the interval), for a chunk's sums
-    and index-weighted sums in one product."""
-    w = _INDICES.get((m, k0))
+def _weights(m: int) -> F64:
+    """(2, m): ones and 0..m-1, for a chunk's sums and index-weighted sums in one product."""
+    w = _WEIGHTS.get(m)
     if w is None:
-        w = np.vstack([np.ones(m), np.arange(k0, k0 + m, dtype=np.float64)])
-        if len(_INDICES) < 4096:
-            _INDICES[(m, k0)] = w
+        w = np.vstack([np.ones(m), np.arange(m, dtype=np.float64)])
+        if len(_WEIGHTS) < 4096:
+            _WEIGHTS[m] = w
     return w
-
-
-_WINDOWS: dict[int, tuple[F64, float]] = {}
-
-
-def _window(n: int) -> tuple[F64, float]:
-    """The correction's window over an interval of n samples, (1 - WINDOW_TAPER) of a plain
-    mean and WINDOW_TAPER of Welch's window, (k + 1)(n - k), each with mean 1; and
-    sum(w^2) / sum(w)^2, the variance of the windowed mean of unit white noise (1 / n for a
-    plain mean; 1.048 / n for this window at n = 128)."""
-    got = _WINDOWS.get(n)
-    if got is None:
-        k = np.arange(n, dtype=np.float64)
-        welch = (k + 1.0) * (n - k)
-        w = (1.0 - WINDOW_TAPER) + WINDOW_TAPER * welch / welch.mean()
-        got = (w, float(w @ w) / float(w.sum()) ** 2)
-        if len(_WINDOWS) < 4096:
-            _WINDOWS[n] = got
-    return got
 
 
 def _left(q: F64) -> F64:
@@ -204,47 +161,24 @@ def _left(q: F64) -> F64:
     return np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
 
 
-def _inverse(s: F64) -> tuple[F64, float] | None:
-    """The inverse of a small symmetric positive matrix and its determinant (closed form up to
-    2 x 2); None if singular."""
+def _inverse(s: F64) -> F64 | None:
+    """The inverse of a small symmetric positive matrix (closed form up to 2 x 2); None if
+    singular."""
     if s.shape[0] == 1:
         v = float(s[0, 0])
-        return None if not v > 0 else (np.array([[1.0 / v]]), v)
+        return None if not v > 0 else np.array([[1.0 / v]])
     if s.shape[0] == 2:
         (a, b), (c, d) = s.tolist()
         det = a * d - b * c
         if not det > 0:
             return None
         inv: F64 = np.array([[d, -b], [-c, a]]) / det
-        return inv, det
-    det = float(np.linalg.det(s))
-    if not det > 0:
+        return inv
+    try:
+        out: F64 = np.asarray(np.linalg.inv(s), dtype=np.float64)
+    except np.linalg.LinAlgError:
         return None
-    out: F64 = np.asarray(np.linalg.inv(s), dtype=np.float64)
-    return out, det
-
-
-class _Innovation(NamedTuple):
-    y: F64  # the innovation
-    ph: F64  # P H^T
-    s: F64  # its covariance
-    s_inv: F64
-    nis: float  # y^T S^-1 y
-    det: float  # det S
-
-
-_GATE = {1: CHI2_1DOF_999, 2: CHI2_2DOF_999, 3: CHI2_3DOF_999}
-
-
-def _likelihood(inn: _Innovation | None) -> float:
-    """The Gaussian density of an innovation under its covariance; 0 outside the chi-squared
-    gate (an outlier for the model)."""
-    if inn is None:
-        return 0.0
-    dof = inn.y.shape[0]
-    if not inn.nis <= _GATE[dof]:
-        return 0.0
-    return math.exp(-0.5 * inn.nis) / math.sqrt((2.0 * math.pi) ** dof * inn.det)
+    return out
 
 
 def tilt_quaternion(accel: F64) -> F64:
@@ -263,33 +197,17 @@ def tilt_quaternion(accel: F64) -> F64:
 @dataclass
 class _Interval:
     """What one correction interval has gathered so far. Rotation matrices are summed as sums of
-    q outer q (`_FORM` turns them into matrices at the correction), so a chunk adds a small
-    product and rotates nothing; gravity's mean is one product at the correction."""
+    q outer q (`_FORM` turns them into matrices at the correction), so a chunk adds two small
+    products and rotates nothing."""
 
+    n: int = 0  # samples with a valid accelerometer reading
     steps: int = 0  # samples integrated
     t: float = 0.0  # seconds integrated
     qq: F64 = field(default_factory=lambda: np.zeros(16))  # sum q outer q
-    kqq: F64 = field(default_factory=lambda: np.zeros(16))  # sum k q outer q (k: index)
-    n: int = 0  # samples with a valid accelerometer reading
-    # each chunk's q outer q (m, 16) and accelerometer readings (m, 3; NaN: none): gravity's
-    # windowed mean is formed at the correction, when the interval's length is known
-    q2s: list[F64] = field(default_factory=list)
-    accels: list[F64] = field(default_factory=list)
+    kqq: F64 = field(default_factory=lambda: np.zeros(16))  # sum (j - 1) q outer q
+    qqa: F64 = field(default_factory=lambda: np.zeros((16, 3)))  # sum (q outer q) outer a
     m_sum: F64 = field(default_factory=lambda: np.zeros(3))
     m_n: int = 0
-
-    def gravity(self, window: bool) -> F64:
-        """The interval's mean specific force in the world frame, under the correction's window
-        or (False) plain."""
-        q2 = self.q2s[0] if len(self.q2s) == 1 else np.concatenate(self.q2s)
-        a = self.accels[0] if len(self.accels) == 1 else np.concatenate(self.accels)
-        w = _window(q2.shape[0])[0] if window else np.ones(q2.shape[0])
-        if self.n < q2.shape[0]:  # some readings missing: they weigh nothing
-            ok = ~np.isnan(a[:, 0])
-            w = w * ok
-            a = np.where(ok[:, None], a, 0.0)
-        out: F64 = _FORM_V @ ((q2.T * w) @ a).ravel() / float(w.sum())
-        return out
 
 
 class OrientationFilter:
@@ -324,12 +242,7 @@ class OrientationFilter:
         self.q = np.array([1.0, 0.0, 0.0, 0.0])
         self.b = np.zeros(3)
         self.a = np.zeros(2)  # world-horizontal linear acceleration, m/s^2
-        self.P = np.zeros((N_STATES, N_STATES))  # the two models' mixture (what is reported)
-        # the interacting models (steady, manoeuvring): each one's error estimate about the
-        # nominal state and its covariance, and their probabilities
-        self._x = np.zeros((2, N_STATES))
-        self._pm = np.zeros((2, N_STATES, N_STATES))
-        self.mu = np.array([1.0 - TO_MANOEUVRE, TO_MANOEUVRE])
+        self.P = np.zeros((N_STATES, N_STATES))
         self.state = OrientState.INITIALISING
         self.counters = Counters()
         self.heading_known = False  # a magnetometer has set the heading
@@ -399,7 +312,7 @@ class OrientationFilter:
         if iv.steps < target:  # j == n: the whole batch went in
             return n
         self._iv = _Interval()
-        mean = iv.gravity(window=False) if iv.n else np.zeros(3)
+        mean = _FORM_V @ iv.qqa.ravel() / max(iv.n, 1)
         g = float(np.linalg.norm(mean))
         if iv.n == 0 or not g > 0.0:  # no gravity seen (no valid accelerometer): wait on
             self.q = np.array([1.0, 0.0, 0.0, 0.0])
@@ -421,7 +334,6 @@ class OrientationFilter:
                 self._mag_ref = float(np.linalg.norm(m))
                 self.heading_known = True
                 self.P[2, 2] = INIT_HEADING_SIGMA**2
-        self._models_from_p()
         self.state = OrientState.RUNNING
         return j
 
@@ -443,30 +355,21 @@ class OrientationFilter:
         g = float(np.linalg.norm(mean))
         self._g0 = g if self._g0 is None else self._g0
         var = self.noise.accel**2 / max(span_s, 1e-3) / g**2 + math.radians(1.0) ** 2
-        self.P[:3, :] = 0.0
-        self.P[:, :3] = 0.0
+        # the tilt and the linear acceleration start again; the heading keeps what it knew (a
+        # new tilt says nothing of it: zeroed, its variance made the covariance singular)
+        for i in (0, 1, 6, 7):
+            self.P[i, :] = 0.0
+            self.P[:, i] = 0.0
         self.P[0, 0] = self.P[1, 1] = var
         self.a = np.zeros(2)
-        self.P[6:, :] = 0.0
-        self.P[:, 6:] = 0.0
-        self.P[6:, 6:] = np.eye(2) * self.linear_var
-        self.P[2, 2] = 0.0 if not self.heading_known else math.radians(1.0) ** 2
-        self._models_from_p()
-
-    def _models_from_p(self) -> None:
-        """Both models start from the reported covariance, each with its own linear
-        acceleration's variance, with no error estimate of their own."""
-        self._x[:] = 0.0
-        self._pm[:] = self.P
+        self.P[6, 6] = self.P[7, 7] = self.linear_var
 
     def reset_bias(self, sigma: float) -> None:
         """Forget the bias learned (a new calibration made it relative to the old one)."""
         self.b = np.zeros(3)
-        for p in (self.P, *self._pm):
-            p[3:6, :] = 0.0
-            p[:, 3:6] = 0.0
-            p[3:6, 3:6] = _I3 * sigma**2
-        self._x[:, 3:6] = 0.0
+        self.P[3:6, :] = 0.0
+        self.P[:, 3:6] = 0.0
+        self.P[3:6, 3:6] = _I3 * sigma**2
 
     def _chunk(self, gyro: F64, accel: F64 | None, dt: float, q_out: F64) -> None:
         m = gyro.shape[0]
@@ -482,21 +385,21 @@ class OrientationFilter:
         th2 = np.einsum("ij,ij->i", c, c)
         e = quat_exp(c, th2)  # each sample's rotation since the chunk began (first order)
         left = _left(self.q)
-        q = np.matmul(e, left.T, out=q_out)
+        q = e @ left.T
+        q_out[:] = q
         iv = self._iv
         q2 = (q[:, :, None] * q[:, None, :]).reshape(m, 16)
-        sums = _indices(m, iv.steps) @ q2
+        sums = _weights(m) @ q2
         iv.qq += sums[0]
-        iv.kqq += sums[1]
-        iv.q2s.append(q2)
-        if accel is None:  # no reading for any of these samples
-            iv.accels.append(np.full((m, 3), np.nan))
-        else:
-            iv.accels.append(accel.copy())
-            bad = 0
-            if math.isnan(float(accel[:, 0].sum())):
-                bad = int(np.isnan(accel[:, 0]).sum())
-            iv.n += m - bad
+        iv.kqq += sums[1] + iv.steps * sums[0]
+        if accel is not None:
+            if np.isnan(accel[:, 0]).any():
+                ok = ~np.isnan(accel[:, 0])
+                accel, q2 = accel[ok], q2[ok]
+            k = accel.shape[0]
+            if k:
+                iv.qqa += q2.T @ accel
+                iv.n += k
         iv.steps += m
         iv.t += m * dt
         # the chunk's end: its rotation vector to second order (Bortz's coning term)
@@ -517,39 +420,8 @@ class OrientationFilter:
         phi[6, 6] = phi[7, 7] = rho
         q = self._q_density * iv.t
         q[6] = q[7] = self.linear_var * (1.0 - rho * rho)
-        self._pm = phi @ self._pm @ phi.T + np.diag(q)  # both models at once
-        self._x = self._x @ phi.T
+        self.P = phi @ self.P @ phi.T + np.diag(q)
         self.a = self.a * rho
-
-    def _mix(self) -> None:
-        """The models' interaction before a prediction: each starts from the mixture of both
-        weighted by the chance it came from each, spread included."""
-        m0, m1 = float(self.mu[0]), float(self.mu[1])
-        c0 = m0 * (1.0 - TO_MANOEUVRE) + m1 * TO_STEADY  # the predicted model probabilities
-        c1 = 1.0 - c0
-        w00, w10 = m0 * (1.0 - TO_MANOEUVRE) / c0, m1 * TO_STEADY / c0  # i given j: w_ij
-        w01, w11 = m0 * TO_MANOEUVRE / c1, m1 * (1.0 - TO_STEADY) / c1
-        x, pm = self._x, self._pm
-        # two components: the spread about their mean is w0j w1j (x0 - x1)(x0 - x1)^T
-        d = x[0] - x[1]
-        dd = np.outer(d, d)
-        p0 = w00 * pm[0] + w10 * pm[1] + (w00 * w10) * dd
-        p1 = w01 * pm[0] + w11 * pm[1] + (w01 * w11) * dd
-        self._x = np.array([w00 * x[0] + w10 * x[1], w01 * x[0] + w11 * x[1]])
-        self._pm = np.array([p0, p1])
-        self.mu = np.array([c0, c1])
-
-    def _combine(self) -> None:
-        """The models' weighted estimate goes into the nominal state; the reported covariance is
-        the mixture's, the models' spread included."""
-        xbar = self.mu @ self._x
-        self._rotate_world(xbar[:3])
-        self.b = self.b + xbar[3:6]
-        self.a = self.a + xbar[6:]
-        self._x = self._x - xbar
-        d = self._x[0] - self._x[1]
-        m0, m1 = float(self.mu[0]), float(self.mu[1])
-        self.P = m0 * self._pm[0] + m1 * self._pm[1] + (m0 * m1) * np.outer(d, d)
 
     def _mag_chunk(self, mag: F64, q: F64) -> None:
         ok = np.isfinite(mag).all(axis=1)
@@ -568,64 +440,54 @@ class OrientationFilter:
     def _correct(self) -> None:
         iv = self._iv
         self._iv = _Interval()
-        self._mix()
         self._propagate(iv)
         for mean, var in self._pending_zero_rate:
             h = np.zeros((3, N_STATES))
             h[:, 3:6] = _I3
-            for j in range(2):
-                self._update(j, h, mean - self.b, np.diag(var))
+            self._update(h, mean - self.b, np.diag(var), 3)
             self.counters.zero_rate_updates += 1
         self._pending_zero_rate = []
         if iv.n:
             self._accel_update(iv)
         if iv.m_n and self.use_mag:
             self._mag_update(iv)
-        self._combine()
 
     def _accel_update(self, iv: _Interval) -> None:
-        # the interval's windowed mean (WINDOW_TAPER)
-        steps = iv.steps
-        mean = iv.gravity(window=True)
-        power = _window(steps)[1]
+        mean = _FORM_V @ iv.qqa.ravel() / iv.n
         g = float(np.linalg.norm(mean))
         g0 = self._g0 if self._g0 is not None else g
-        dt = iv.t / max(steps, 1)
+        t = iv.n * iv.t / max(iv.steps, 1)
         # the datasheet's white noise averaged over the interval, what the innovations have
         # shown beyond it lately (vibration the average did not cancel, linear acceleration),
         # and |a| away from gravity (linear acceleration of that size, now)
-        var = self.noise.accel**2 / dt * power * steps / iv.n + (g - g0) ** 2
+        var = self.noise.accel**2 / t + (g - g0) ** 2
         y = mean[:2] - self.a
         # what the interval means scatter by from one to the next beyond the datasheet's white
-        # noise (a vibration the mean did not cancel) is white noise too: measured by the step
-        # from the last correction's residual to this innovation, which a slow acceleration
-        # hardly moves (nor the correction itself, as the step between innovations would), it
-        # goes into the measurement's noise, and only what is left (the slow part) into the
-        # linear acceleration's state; a step counts up to a few times the level (a
-        # manoeuvre's steps are not vibration)
-        white_step = None
+        # noise (a vibration the mean did not cancel) is white noise too: measured by the
+        # innovations' steps, which a slow acceleration hardly moves, it goes into the
+        # measurement's noise, and only what is left (the slow part) into the linear
+        # acceleration's state
         if self._prev_y is not None:
             d = y - self._prev_y
-            level = max(var, self._white_var)
-            white_step = min(0.25 * float(d @ d), (1.0 + ADAPT_CLIP) * level) - self._white_var
+            self._white_var += WHITE_GAIN * (0.25 * float(d @ d) - self._white_var)
+        self._prev_y = y
         var = max(var, self._white_var)
-        a2 = (_FORM @ iv.kqq).reshape(3, 3) * (dt / iv.n)
-        h = np.zeros((2, N_STATES))
-        h[0, 1], h[1, 0] = -g, g  # gravity's horizontal components for a world tilt
-        h[0, 3:6], h[1, 3:6] = -g * a2[1], g * a2[0]  # and for the bias through it
-        h[0, 6] = h[1, 7] = 1.0
-        r = _I2 * var
-        steady = self._innovation(0, h, y, r)
-        manoeuvre_like = self._manoeuvre_likelihood(h, y, var)
-        # covariance matching: the steady model's innovations' spread beyond what it predicts
-        # is the platform's linear acceleration (or vibration the average did not cancel); one
-        # interval moves it by at most a few times what was predicted (Huber's clipping): a
-        # manoeuvre's first interval, tens of times larger, is the other model's to explain
-        excess = 0.0
-        if steady is not None:
-            predicted = 0.5 * float(steady.s[0, 0] + steady.s[1, 1])
-            excess = min(0.5 * float(steady.y @ steady.y) - predicted, ADAPT_CLIP * predicted)
+        gm = np.array([[0.0, -g, 0.0], [g, 0.0, 0.0]])
+        dt = iv.t / max(iv.steps, 1)
+        a2 = (_FORM @ iv.kqq).reshape(3, 3) * dt
+        h = np.hstack([gm, gm @ (a2 / iv.n), _I2])
+        # covariance matching: the innovations' spread beyond what the filter predicts is the
+        # platform's linear acceleration (or vibration the average did not cancel); its
+        # variance follows, within [LINEAR_FLOOR, linear_max], rejected intervals included
+        hph = h @ self.P @ h.T
+        excess = 0.5 * float(y @ y - hph[0, 0] - hph[1, 1]) - var
         self._adapt_n += 1
+        lv = self.linear_var + max(ADAPT_GAIN, 1.0 / self._adapt_n) * excess  # a mean at first
+        self.linear_var = min(max(lv, LINEAR_FLOOR**2), self.linear_max**2)
+        # the reference follows |a| slowly whatever the motion (linear acceleration averages
+        # out over tens of seconds; a first interval may have caught a vibration's crest)
+        self._g0_n += 1
+        self._g0 = g0 + max(G0_GAIN, 1.0 / self._g0_n) * (g - g0)  # a plain mean at first
         # what gravity may teach the bias: nothing while the linear acceleration's level is
         # still unknown (at the start a drone's holding accelerations would be learned as a
         # bias that stays wrong for tens of seconds); all of it while the platform is steady;
@@ -639,31 +501,7 @@ class OrientationFilter:
             learn = Learn.ALL
         else:
             learn = Learn.HORIZONTAL
-        # the manoeuvring model takes gravity with its large linear acceleration, and learns no
-        # bias from it; the models' probabilities follow how well each predicted the reading
-        steady_like = _likelihood(steady)
-        if steady_like > 0.0:
-            assert steady is not None
-            self._apply(0, h, steady, r, learn)
-        m0, m1 = float(self.mu[0]) * steady_like, float(self.mu[1]) * manoeuvre_like
-        if m0 + m1 > 0.0:
-            self.mu = np.array([m0, m1]) / (m0 + m1)
-        # the residual after the correction: the next interval's innovation less it is what
-        # the readings did between them (less the correction's own step)
-        self._prev_y = y - h @ (self.mu @ self._x)
-        # the steady model's noise levels follow this interval as far as it was the steady
-        # model's (its posterior: a manoeuvre is the other model's to explain); at the start,
-        # before the platform's level is known, every interval counts
-        w = 1.0 if self._adapt_n < STEADY_AFTER else float(self.mu[0])
-        lv = self.linear_var + max(ADAPT_GAIN, 1.0 / self._adapt_n) * w * excess
-        self.linear_var = min(max(lv, LINEAR_FLOOR**2), self.linear_max**2)
-        if white_step is not None:
-            self._white_var += WHITE_GAIN * w * white_step
-        # the reference |gravity| follows |a| slowly (linear acceleration averages out over
-        # tens of seconds; a first interval may have caught a vibration's crest)
-        self._g0_n += 1
-        self._g0 = g0 + max(G0_GAIN, 1.0 / self._g0_n) * w * (g - g0)  # a plain mean at first
-        if steady_like > 0.0:
+        if self._update(h, y, _I2 * var, 2, learn):
             self.counters.accel_updates += 1
             self._rejected_s = 0.0
             self.state = OrientState.RUNNING
@@ -677,21 +515,6 @@ class OrientationFilter:
             self.counters.recoveries += 1
             self._rejected_s = 0.0
 
-    def _manoeuvre_likelihood(self, h: F64, y: F64, var: float) -> float:
-        """The density of gravity's innovation under the manoeuvring model (its linear
-        acceleration LINEAR_MANOEUVRE), in closed form for the 2 x 2 case."""
-        y0, y1 = (y - h @ self._x[1]).tolist()
-        (a, b), (c, d) = (h @ self._pm[1] @ h.T).tolist()
-        a += var + LINEAR_MANOEUVRE**2
-        d += var + LINEAR_MANOEUVRE**2
-        det = a * d - b * c
-        if not det > 0.0:
-            return 0.0
-        nis = (d * y0 * y0 - (b + c) * y0 * y1 + a * y1 * y1) / det
-        if not nis <= CHI2_2DOF_999:
-            return 0.0
-        return math.exp(-0.5 * nis) / (2.0 * math.pi * math.sqrt(det))
-
     def _mag_update(self, iv: _Interval) -> None:
         m = iv.m_sum / iv.m_n
         bh = math.hypot(float(m[0]), float(m[1]))
@@ -700,11 +523,9 @@ class OrientationFilter:
             return
         if not self.heading_known:  # the first field seen (it came after the start)
             self._rotate_world(np.array([0.0, 0.0, self._north(m)]))
-            self._x[:, 2] = 0.0
-            for p in (self.P, *self._pm):
-                p[2, :] = 0.0
-                p[:, 2] = 0.0
-                p[2, 2] = INIT_HEADING_SIGMA**2
+            self.P[2, :] = 0.0
+            self.P[:, 2] = 0.0
+            self.P[2, 2] = INIT_HEADING_SIGMA**2
             self._mag_ref = norm
             self.heading_known = True
             return
@@ -722,38 +543,32 @@ class OrientationFilter:
         h[0, 1] = -float(m[2]) / bh
         h[0, 2] = 1.0
         # the heading's drift teaches the bias along the vertical; the field's tilt coupling
-        # also reaches the horizontal bias, through tilt errors gravity left (a drone's holding
-        # accelerations): learned, it made the bias confident and wrong
-        y = np.array([north])
-        r = np.array([[var]])
-        ok = [self._update(j, h, y, r, Learn.VERTICAL) for j in range(2)]
-        if ok[0]:
+        # would also reach the horizontal bias, through the tilt errors gravity left (a drone's
+        # holding accelerations), and made it confident and wrong: considered, not learned
+        if self._update(h, np.array([north]), np.array([[var]]), 1, Learn.VERTICAL):
             self.counters.mag_updates += 1
         else:
             self.counters.mag_rejected += 1
 
-    def _innovation(self, j: int, h: F64, y: F64, r: F64) -> _Innovation | None:
-        """Model j's innovation for a reading whose innovation about the nominal state is y;
-        None if its covariance is singular."""
-        y = y - h @ self._x[j]
-        ph = self._pm[j] @ h.T
+    def _update(self, h: F64, y: F64, r: F64, dof: int, learn: Learn = Learn.ALL) -> bool:
+        """A Kalman update with the chi-squared gate; False (and nothing changed) if rejected.
+        `learn` below ALL: the states it leaves out are considered, not estimated (a Schmidt
+        update: their gain is zero, the covariance stays consistent)."""
+        P = self.P
+        ph = P @ h.T
         s = h @ ph + r
-        inv = _inverse(s)
-        if inv is None:
-            return None
-        s_inv, det = inv
-        return _Innovation(y, ph, s, s_inv, float(y @ s_inv @ y), det)
-
-    def _apply(self, j: int, h: F64, inn: _Innovation, r: F64, learn: Learn) -> None:
-        """Model j's Kalman update by an innovation. `learn` below ALL: the states it leaves
-        out are considered, not estimated (a Schmidt update: their gain is zero, the covariance
-        stays consistent)."""
-        P = self._pm[j]
-        k = inn.ph @ inn.s_inv
+        s_inv = _inverse(s)
+        if s_inv is None:
+            return False
+        nis = float(y @ s_inv @ y)
+        gate = CHI2_2DOF_999 if dof == 2 else CHI2_1DOF_999 if dof == 1 else CHI2_3DOF_999
+        if not nis <= gate:
+            return False
+        k = ph @ s_inv
         if learn is Learn.IF_CONSISTENT:
-            learn = Learn.ALL if inn.nis <= CHI2_2DOF_95 else Learn.NOTHING
+            learn = Learn.ALL if nis <= CHI2_2DOF_95 else Learn.NOTHING
         if learn is Learn.ALL:
-            p = P - k @ inn.ph.T
+            p = P - k @ ph.T
         else:
             if learn is Learn.NOTHING:
                 k[3:6] = 0.0
@@ -769,18 +584,12 @@ class OrientationFilter:
                 k[2] = 0.0
             ikh = _I8 - k @ h
             p = ikh @ P @ ikh.T + k @ r @ k.T
-        self._pm[j] = 0.5 * (p + p.T)
-        self._x[j] = self._x[j] + k @ inn.y
-
-    def _update(self, j: int, h: F64, y: F64, r: F64, learn: Learn = Learn.ALL) -> float:
-        """Model j's update with the chi-squared gate: the reading's likelihood under the
-        model, or 0 (and nothing changed) if rejected."""
-        inn = self._innovation(j, h, y, r)
-        like = _likelihood(inn)
-        if like > 0.0:
-            assert inn is not None
-            self._apply(j, h, inn, r, learn)
-        return like
+        dx = k @ y
+        self.P = 0.5 * (p + p.T)
+        self._rotate_world(dx[:3])
+        self.b = self.b + dx[3:6]
+        self.a = self.a + dx[6:]
+        return True
 
     def _body_up(self) -> F64:
         """The world's vertical in the body frame (the third row of R)."""
@@ -788,13 +597,6 @@ class OrientationFilter:
         return np.array([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)])
 
     def _rotate_world(self, dtheta: F64) -> None:
-        ew, ex, ey, ez = _quat_exp1(*dtheta.tolist()).tolist()
-        w, x, y, z = self.q.tolist()
-        q = (
-            ew * w - ex * x - ey * y - ez * z,
-            ew * x + ex * w + ey * z - ez * y,
-            ew * y - ex * z + ey * w + ez * x,
-            ew * z + ex * y - ey * x + ez * w,
-        )
-        norm = math.sqrt(sum(v * v for v in q))
-        self.q = np.array(q) / norm
+        e = _quat_exp1(*dtheta.tolist())
+        q = _left(e) @ self.q
+        self.q = q / math.sqrt(float(q @ q))
