@@ -344,23 +344,22 @@ class OrientationFilter:
         return (north + math.pi) % (2 * math.pi) - math.pi
 
     def _seed_tilt(self, mean: F64, span_s: float) -> None:
-        yaw = 0.0
-        if self.state is not OrientState.INITIALISING:
-            r = quat_to_matrix(self.q)
-            yaw = math.atan2(r[1, 0], r[0, 0])
-        q = tilt_quaternion(mean)
-        if yaw:
-            q = _left(np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])) @ q
-        self.q = q
+        """Turn the estimate so an interval's mean specific force, in the world frame as the
+        estimate sees it, points up (the shortest rotation: its axis is horizontal, so the
+        heading stays), and start the tilt's covariance again; the bias that drove the tilt
+        away is as uncertain as at the start."""
+        q = _left(tilt_quaternion(mean)) @ self.q
+        self.q = q / math.sqrt(float(q @ q))
         g = float(np.linalg.norm(mean))
         self._g0 = g if self._g0 is None else self._g0
         var = self.noise.accel**2 / max(span_s, 1e-3) / g**2 + math.radians(1.0) ** 2
-        # the tilt and the linear acceleration start again; the heading keeps what it knew (a
-        # new tilt says nothing of it: zeroed, its variance made the covariance singular)
-        for i in (0, 1, 6, 7):
+        # the heading keeps what it knew (a new tilt says nothing of it: zeroed, its variance
+        # made the covariance singular)
+        for i in (0, 1, 3, 4, 5, 6, 7):
             self.P[i, :] = 0.0
             self.P[:, i] = 0.0
         self.P[0, 0] = self.P[1, 1] = var
+        self.P[3:6, 3:6] = _I3 * self.bias_sigma**2
         self.a = np.zeros(2)
         self.P[6, 6] = self.P[7, 7] = self.linear_var
 
