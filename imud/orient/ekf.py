@@ -571,12 +571,10 @@ class OrientationFilter:
         else:
             if learn is Learn.NOTHING:
                 k[3:6] = 0.0
-            elif learn is Learn.VERTICAL:
+            else:  # the bias along the body's vertical alone, or all but it
                 u = self._body_up()
-                k[3:6] = np.outer(u, u @ k[3:6])
-            else:  # not the bias along the body's vertical
-                u = self._body_up()
-                k[3:6] -= np.outer(u, u @ k[3:6])
+                along = np.outer(u, u @ k[3:6])
+                k[3:6] = along if learn is Learn.VERTICAL else k[3:6] - along
             if not self.heading_known:
                 # nor the heading through its correlation with the tilt (with no magnetometer
                 # to measure it): it would follow the acceleration taken for gravity too
