@@ -26,6 +26,8 @@ from imud.cli.common import (
     _session,
 )
 
+LIVE_SETTLE_S = 0.5  # how long a live view gathers the devices' channels before it serves
+
 
 @click.command()
 @click.argument("path", required=False, type=click.Path(dir_okay=False, exists=True))
@@ -57,17 +59,22 @@ def view(
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    try:
-        out = FoxgloveOut(port)
-    except Exception as e:  # the port is taken
-        _fail(f"cannot serve on 127.0.0.1:{port}: {e}; give --port", EXIT_USAGE)
+    out = FoxgloveOut()
     try:
         if path is None:
-            _live(out, stop, layout_path, endpoint, prefix)
+            _live(out, port, stop, layout_path, endpoint, prefix)
         else:
-            _file(out, stop, Path(path), layout_path, loop)
+            _file(out, port, stop, Path(path), layout_path, loop)
     finally:
         out.close()
+
+
+def _serve(out: Any, port: int, what: str) -> None:
+    try:
+        out.serve(port)
+    except Exception as e:  # the port is taken
+        _fail(f"cannot serve on 127.0.0.1:{port}: {e}; give --port", EXIT_USAGE)
+    _announce(out, what)
 
 
 def _announce(out: Any, what: str) -> None:
@@ -86,7 +93,12 @@ def _write_layout(path: str | None, devices: list[dict[str, Any]], namespace: st
 
 
 def _live(
-    out: Any, stop: threading.Event, layout_path: str | None, endpoint: str, prefix: str
+    out: Any,
+    port: int,
+    stop: threading.Event,
+    layout_path: str | None,
+    endpoint: str,
+    prefix: str,
 ) -> None:
     from imud.recording.recorder import Recorder
     from imud.session import NoDaemon, get_config, get_status
@@ -110,7 +122,12 @@ def _live(
         names = [d["name"] for d in devices]
         rec = Recorder(s, prefix, names, cfg, out, native=False, on_status=status, hold_ms=20.0)
         rec.start()
-        _announce(out, f"{', '.join(names)} from {endpoint}")
+        # the devices' first messages make their channels, so a client's first advertisement
+        # holds them (see FoxgloveOut)
+        first = time.monotonic() + LIVE_SETTLE_S
+        while not stop.is_set() and time.monotonic() < first:
+            rec.drain(0.05)
+        _serve(out, port, f"{', '.join(names)} from {endpoint}")
         next_status = time.monotonic()
         try:
             while not stop.is_set():
@@ -126,7 +143,9 @@ def _live(
             rec.stop()
 
 
-def _file(out: Any, stop: threading.Event, path: Path, layout_path: str | None, loop: bool) -> None:
+def _file(
+    out: Any, port: int, stop: threading.Event, path: Path, layout_path: str | None, loop: bool
+) -> None:
     from imud.recording.reader import McapInputError, open_recording
 
     try:
@@ -139,7 +158,8 @@ def _file(out: Any, stop: threading.Event, path: Path, layout_path: str | None, 
     found = rec.daemon_config()
     namespace = str(((found[0] if found else {}).get("ros2") or {}).get("namespace", ""))
     _write_layout(layout_path, devices, namespace)
-    _announce(out, str(path))
+    out.announce(_topics(rec))
+    _serve(out, port, str(path))
     click.echo("it plays once a client subscribes", err=True)
     while not stop.is_set():
         try:
@@ -149,6 +169,25 @@ def _file(out: Any, stop: threading.Event, path: Path, layout_path: str | None, 
         if not loop:
             click.echo("the recording ended (Ctrl-C to stop serving)", err=True)
             stop.wait()
+
+
+def _topics(rec: Any) -> list[tuple[str, str]]:
+    """(topic, message type) of an indexed recording's channels, less the native batches: every
+    topic there to subscribe to before it plays. An unindexed one's come as it plays."""
+    from mcap.reader import make_reader
+
+    if not rec.indexed:
+        return []
+    native = set(rec.devices.values())
+    with open(rec.path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    if summary is None:
+        return []
+    return [
+        (c.topic, summary.schemas[c.schema_id].name)
+        for c in summary.channels.values()
+        if c.topic not in native and c.schema_id in summary.schemas
+    ]
 
 
 def _play(out: Any, stop: threading.Event, rec: Any) -> None:
@@ -162,15 +201,6 @@ def _play(out: Any, stop: threading.Event, rec: Any) -> None:
     from imud.wire import decode
 
     native = {topic: name for name, topic in rec.devices.items()}
-    if rec.indexed:  # every topic there to subscribe to before it plays
-        with open(rec.path, "rb") as f:
-            summary = make_reader(f).get_summary()
-        if summary is not None:
-            out.announce([
-                (c.topic, summary.schemas[c.schema_id].name)
-                for c in summary.channels.values()
-                if c.topic not in native and c.schema_id in summary.schemas
-            ])  # fmt: skip
     while not stop.is_set() and not out.subscribed():
         stop.wait(0.05)
     counts = {

@@ -45,12 +45,15 @@ STATUS_SCHEMA = {
 class FoxgloveOut:
     """The recorder's sink (`add`, `flush`, `close`) onto a Foxglove WebSocket server."""
 
-    def __init__(self, port: int, name: str = "imud", host: str = "127.0.0.1") -> None:
+    def __init__(self) -> None:
+        """Channels only: `serve` starts the server once the channels a client should see at
+        once exist. foxglove-sdk (0.30) can advertise a channel made while a client connects
+        and then refuse that client's subscription to it ("Unknown channel ID")."""
         import foxglove
 
         self._fox = foxglove
-        self.server = foxglove.start_server(name=name, host=host, port=port)
-        self.port: int = self.server.port
+        self.server: Any = None
+        self.port = 0
         self._channels: dict[str, Any] = {}
         self._status = foxglove.Channel(
             STATUS_TOPIC,
@@ -85,6 +88,11 @@ class FoxgloveOut:
             )
         return ch
 
+    def serve(self, port: int, name: str = "imud", host: str = "127.0.0.1") -> None:
+        """Start the WebSocket server (raises if the port is taken)."""
+        self.server = self._fox.start_server(name=name, host=host, port=port)
+        self.port = self.server.port
+
     def subscribed(self) -> bool:
         """Whether a client has subscribed to any channel (a viewer is watching)."""
         return any(ch.has_sinks() for ch in (*self._channels.values(), self._status))
@@ -105,7 +113,8 @@ class FoxgloveOut:
         return 0
 
     def close(self) -> None:
-        self.server.stop()
+        if self.server is not None:
+            self.server.stop()
 
 
 def layout(devices: list[dict[str, Any]], namespace: str = "") -> dict[str, Any]:
