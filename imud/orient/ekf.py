@@ -15,16 +15,18 @@ second-order (coning) term. The world-frame error moves only through the bias,
 d(dtheta)/dt = -R db, so the covariance needs just sums of the samples' rotation matrices, kept
 exactly as sums of q outer q.
 
-Correction runs at `update_hz`: the accelerometer samples of the interval are rotated into the
-world frame with the orientation of their own instants and averaged, so a platform turning
-during the interval still yields one gravity direction, and the noise of the average is the
+Correction runs at `update_hz`: the accelerometer samples of the last two intervals are
+rotated into the world frame with the orientation of their own instants and averaged under a
+triangle, so a platform turning meanwhile still yields one gravity direction, a vibration
+leaves little of itself whatever the batch size, and the noise of the average is the
 accelerometer's low-frequency density over the interval's length (correct even behind a
 low-pass filter that correlates the samples). Linear acceleration is a first-order
 Gauss-Markov state whose variance follows the innovations up to a ceiling; beyond it an
 innovation fails the chi-squared gate and the gyro carries the orientation. The innovations'
 step-to-step scatter (vibration the means did not cancel) and |a| away from gravity add to the
-measurement's noise; after `recovery_s` of rejections the tilt is re-seeded from the
-accelerometer. The magnetometer corrects heading (its horizontal direction, with the tilt's
+measurement's noise; after `recovery_s` of rejections, or half a second of them while |a|
+stays at gravity (the estimate drifted, the platform did not accelerate), the tilt is re-seeded
+from the accelerometer. The magnetometer corrects heading (its horizontal direction, with the tilt's
 coupling through the dip); a field whose magnitude departs from the reference is rejected.
 While the device rests, a still window's mean gyro is a direct measurement of the bias
 (`zero_rate`), fed from the gyro-bias tracker's stillness tests: one bias estimate, not two.
@@ -59,6 +61,12 @@ LINEAR_CEILING = 0.2
 G0_GAIN = 0.003  # the reference |gravity| follows |a| over about thirty seconds
 STEADY_AFTER = 12  # corrections (two seconds at the default rate)
 LINEAR_STEADY = 0.05  # m/s^2: at most this much linear acceleration, the bias learns from gravity
+# rejected intervals whose |a| shows less than this share of what a horizontal acceleration as
+# large as the innovation would add, and by this many standard deviations, for this long: the
+# estimate drifted (see `_accel_update`)
+DRIFT_SHARE = 0.25
+DRIFT_SIGMAS = 4.0
+DRIFT_S = 0.5
 MAG_NORM_TOLERANCE = 0.1  # a field whose magnitude departs from the reference by more: disturbed
 INIT_TILT_SIGMA = math.radians(5.0)  # the first mean may hold linear acceleration: say so
 INIT_HEADING_SIGMA = math.radians(15.0)  # and the tilt's error shows in the heading, 2-3x
@@ -142,17 +150,17 @@ def _quat_exp1(x: float, y: float, z: float) -> F64:
     return np.array([math.cos(0.5 * th), x * s, y * s, z * s])
 
 
-_WEIGHTS: dict[int, F64] = {}
+_RAMPS: dict[int, F64] = {}
 
 
-def _weights(m: int) -> F64:
-    """(2, m): ones and 0..m-1, for a chunk's sums and index-weighted sums in one product."""
-    w = _WEIGHTS.get(m)
-    if w is None:
-        w = np.vstack([np.ones(m), np.arange(m, dtype=np.float64)])
-        if len(_WEIGHTS) < 4096:
-            _WEIGHTS[m] = w
-    return w
+def _ramp(m: int) -> F64:
+    """0, 1, ..., m - 1 (a chunk's sample indices), made once per chunk length."""
+    r = _RAMPS.get(m)
+    if r is None:
+        r = np.arange(m, dtype=np.float64)
+        if len(_RAMPS) < 4096:
+            _RAMPS[m] = r
+    return r
 
 
 def _left(q: F64) -> F64:
@@ -204,8 +212,11 @@ class _Interval:
     steps: int = 0  # samples integrated
     t: float = 0.0  # seconds integrated
     qq: F64 = field(default_factory=lambda: np.zeros(16))  # sum q outer q
-    kqq: F64 = field(default_factory=lambda: np.zeros(16))  # sum (j - 1) q outer q
     qqa: F64 = field(default_factory=lambda: np.zeros((16, 3)))  # sum (q outer q) outer a
+    # the same weighted by each sample's index in the interval, and the sum of those indices:
+    # the two halves of the gravity window (`_gravity_window`)
+    kqqa: F64 = field(default_factory=lambda: np.zeros((16, 3)))
+    kn: float = 0.0
     m_sum: F64 = field(default_factory=lambda: np.zeros(3))
     m_n: int = 0
 
@@ -253,7 +264,12 @@ class OrientationFilter:
         self._rejected_s = 0.0
         self._prev_y: F64 | None = None  # the last gravity innovation
         self._white_var = 0.0  # its steps' variance per axis, m^2/s^4
+        self._g_var = 0.0  # |a| about the reference's variance, in intervals gravity explained
+        self._drifted_s = 0.0  # rejected in a row with |a| at gravity: the estimate drifted
         self._iv = _Interval()
+        # the last interval's half of the next gravity window: its world-frame specific force
+        # weighted by a ramp rising to its end, the ramp's weight, its length (s)
+        self._rise: tuple[F64, float, float] | None = None
         self._pending_zero_rate: list[tuple[F64, F64]] = []
 
     # --- inputs ---------------------------------------------------------------------------
@@ -350,6 +366,7 @@ class OrientationFilter:
         away is as uncertain as at the start."""
         q = _left(tilt_quaternion(mean)) @ self.q
         self.q = q / math.sqrt(float(q @ q))
+        self._rise = None  # measured in the world the estimate has left
         g = float(np.linalg.norm(mean))
         self._g0 = g if self._g0 is None else self._g0
         var = self.noise.accel**2 / max(span_s, 1e-3) / g**2 + math.radians(1.0) ** 2
@@ -388,16 +405,24 @@ class OrientationFilter:
         q_out[:] = q
         iv = self._iv
         q2 = (q[:, :, None] * q[:, None, :]).reshape(m, 16)
-        sums = _weights(m) @ q2
-        iv.qq += sums[0]
-        iv.kqq += sums[1] + iv.steps * sums[0]
+        iv.qq += q2.sum(axis=0)
         if accel is not None:
+            idx = _ramp(m) + iv.steps  # each sample's index in the interval
             if np.isnan(accel[:, 0]).any():
                 ok = ~np.isnan(accel[:, 0])
-                accel, q2 = accel[ok], q2[ok]
+                accel, q2, idx = accel[ok], q2[ok], idx[ok]
+                kn = float(idx.sum())
+            else:
+                kn = m * iv.steps + 0.5 * m * (m - 1)
             k = accel.shape[0]
             if k:
-                iv.qqa += q2.T @ accel
+                both = np.empty((k, 6))  # the plain and the index-weighted sums in one product
+                both[:, :3] = accel
+                np.multiply(accel, idx[:, None], out=both[:, 3:])
+                sums = q2.T @ both
+                iv.qqa += sums[:, :3]
+                iv.kqqa += sums[:, 3:]
+                iv.kn += kn
                 iv.n += k
         iv.steps += m
         iv.t += m * dt
@@ -451,8 +476,36 @@ class OrientationFilter:
         if iv.m_n and self.use_mag:
             self._mag_update(iv)
 
+    def _gravity_window(self, iv: _Interval) -> tuple[F64, float]:
+        """The world-frame mean specific force under a triangle spanning the last interval and
+        this one (rising through the last, falling through this), and how long before this
+        interval's end the window's centre lies (s).
+
+        A plain mean over one interval passes a vibration of 1.5 cycles an interval at 21 % of
+        its amplitude (a car's 15 Hz road shake at 10 Hz corrections), and how many cycles an
+        interval holds depends on the batch size; the triangle passes 4.5 % (sinc squared).
+        Overlapping windows correlate successive means, by 1/4 for white noise: the
+        triangle's variance, 2/3 of a plain mean's, times the 1.5 that correlation costs a
+        filter averaging them, is a plain mean's, so the measurement noise stays as it was.
+        The first interval after the start or a re-seed is a plain mean."""
+        steps = max(iv.steps, 1)
+        total = _FORM_V @ iv.qqa.ravel()
+        rising = _FORM_V @ iv.kqqa.ravel() / steps
+        w_rise = iv.kn / steps
+        w_fall = iv.n - w_rise
+        prev = self._rise
+        self._rise = (rising, w_rise, iv.t)
+        if prev is None or not prev[1] + w_fall > 0.0:
+            return total / iv.n, 0.5 * iv.t
+        vec, w, t_prev = prev
+        # this interval's falling half weighs a sample at x of the way through it by (1 - x),
+        # (1 - x) t before its end: its centre is t / 3 before; the last one's rising half
+        # weighs by x, t + (1 - x) t_prev before: its centre is t + t_prev / 3 before
+        centre = (w_fall * iv.t / 3.0 + w * (iv.t + t_prev / 3.0)) / (w_fall + w)
+        return (total - rising + vec) / (w_fall + w), centre
+
     def _accel_update(self, iv: _Interval) -> None:
-        mean = _FORM_V @ iv.qqa.ravel() / iv.n
+        mean, centre = self._gravity_window(iv)
         g = float(np.linalg.norm(mean))
         g0 = self._g0 if self._g0 is not None else g
         t = iv.n * iv.t / max(iv.steps, 1)
@@ -472,9 +525,10 @@ class OrientationFilter:
         self._prev_y = y
         var = max(var, self._white_var)
         gm = np.array([[0.0, -g, 0.0], [g, 0.0, 0.0]])
-        dt = iv.t / max(iv.steps, 1)
-        a2 = (_FORM @ iv.kqq).reshape(3, 3) * dt
-        h = np.hstack([gm, gm @ (a2 / iv.n), _I2])
+        # the error at the window's centre: the end's, plus the turn the bias made since (the
+        # body's rotation over the interval taken as steady)
+        a1 = (_FORM @ iv.qq).reshape(3, 3) / max(iv.steps, 1)
+        h = np.hstack([gm, gm @ (a1 * centre), _I2])
         # covariance matching: the innovations' spread beyond what the filter predicts is the
         # platform's linear acceleration (or vibration the average did not cancel); its
         # variance follows, within [LINEAR_FLOOR, linear_max], rejected intervals included
@@ -483,10 +537,6 @@ class OrientationFilter:
         self._adapt_n += 1
         lv = self.linear_var + max(ADAPT_GAIN, 1.0 / self._adapt_n) * excess  # a mean at first
         self.linear_var = min(max(lv, LINEAR_FLOOR**2), self.linear_max**2)
-        # the reference follows |a| slowly whatever the motion (linear acceleration averages
-        # out over tens of seconds; a first interval may have caught a vibration's crest)
-        self._g0_n += 1
-        self._g0 = g0 + max(G0_GAIN, 1.0 / self._g0_n) * (g - g0)  # a plain mean at first
         # what gravity may teach the bias: nothing while the linear acceleration's level is
         # still unknown (at the start a drone's holding accelerations would be learned as a
         # bias that stays wrong for tens of seconds); all of it while the platform is steady;
@@ -501,18 +551,34 @@ class OrientationFilter:
         else:
             learn = Learn.HORIZONTAL
         if self._update(h, y, _I2 * var, 2, learn):
+            # the reference follows |a| slowly, from the intervals gravity explained: a
+            # horizontal acceleration only ever adds to |a|, so a car's manoeuvres would raise
+            # it, and every steady interval after them would look accelerated
+            self._g0_n += 1
+            self._g0 = g0 + max(G0_GAIN, 1.0 / self._g0_n) * (g - g0)  # a plain mean at first
+            self._g_var += WHITE_GAIN * ((g - g0) ** 2 - self._g_var)
             self.counters.accel_updates += 1
-            self._rejected_s = 0.0
+            self._rejected_s = self._drifted_s = 0.0
             self.state = OrientState.RUNNING
             return
         self.counters.accel_rejected += 1
         self.state = OrientState.ACCEL_REJECTED
         self._rejected_s += iv.t
-        if self._rejected_s >= self.recovery_s:
+        # a horizontal acceleration as large as the innovation would add |y|^2 / 2g to |a|; if
+        # |a| stays at gravity instead, the estimate drifted (a bias learned wrong), not the
+        # platform: a hovering drone is not made to wait `recovery_s` at a 10-20 deg tilt. A
+        # car's turn shows its |a| (2.5 m/s^2 of it: +0.32 m/s^2); a vertical acceleration
+        # that hid one would need to cancel it for the whole run.
+        claimed = float(y @ y) / (2.0 * g0)
+        sd = math.sqrt(self.noise.accel**2 / t + self._g_var)
+        seen = g - g0
+        drifted = seen < DRIFT_SHARE * claimed and claimed - seen > DRIFT_SIGMAS * sd
+        self._drifted_s = self._drifted_s + iv.t if drifted else 0.0
+        if self._drifted_s >= DRIFT_S or self._rejected_s >= self.recovery_s:
             # never agreeing for this long: the tilt is wrong, not the accelerometer
             self._seed_tilt(mean, iv.t)
             self.counters.recoveries += 1
-            self._rejected_s = 0.0
+            self._rejected_s = self._drifted_s = 0.0
 
     def _mag_update(self, iv: _Interval) -> None:
         m = iv.m_sum / iv.m_n
@@ -597,3 +663,6 @@ class OrientationFilter:
         e = _quat_exp1(*dtheta.tolist())
         q = _left(e) @ self.q
         self.q = q / math.sqrt(float(q @ q))
+        if self._rise is not None:  # the next window's first half turns with the world
+            vec, w, t = self._rise
+            self._rise = (quat_to_matrix(e) @ vec, w, t)
