@@ -158,7 +158,10 @@ def _file(
     found = rec.daemon_config()
     namespace = str(((found[0] if found else {}).get("ros2") or {}).get("namespace", ""))
     _write_layout(layout_path, devices, namespace)
-    out.announce(_topics(rec))
+    try:
+        out.announce(_topics(rec))
+    except Exception as e:  # a summary that open_recording took and the reader does not
+        _fail(f"{path}: damaged: {e}; `imud record --recover {path}` saves the rest", 1)
     _serve(out, port, str(path))
     click.echo("it plays once a client subscribes", err=True)
     while not stop.is_set():
