@@ -70,14 +70,11 @@ def view(
 
 
 def _serve(out: Any, port: int, what: str) -> None:
+    """Start the server and say where (tests and users read the address from this line)."""
     try:
         out.serve(port)
     except Exception as e:  # the port is taken
         _fail(f"cannot serve on 127.0.0.1:{port}: {e}; give --port", EXIT_USAGE)
-    _announce(out, what)
-
-
-def _announce(out: Any, what: str) -> None:
     click.echo(
         f"serving {what} to Foxglove on ws://127.0.0.1:{out.port} (Ctrl-C to stop)", err=True
     )
