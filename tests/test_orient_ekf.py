@@ -338,3 +338,18 @@ def test_a_start_under_acceleration_is_re_seeded_to_the_true_tilt() -> None:
     assert f.counters.recoveries >= 1
     level = np.broadcast_to(np.array([1.0, 0.0, 0.0, 0.0]), q.shape)
     assert M.tilt_error_deg(q[-5000:], level[-5000:]).max() < 0.5
+
+
+def test_the_own_model_drone_draws_its_accelerations_from_the_stated_process() -> None:
+    """The Gauss-Markov holding accelerations that check the filter where its model holds have
+    the stated spread and time constant (an AR(1)'s lag-k correlation is exp(-k dt / tau))."""
+    s = sc.drone_hover(seed=3, seconds=400.0, hold_sigma=0.15)
+    a = s.linear[:, :2]
+    assert np.all(s.linear[:, 2] == 0.0)
+    # 400 time constants: the sample sd is within ~4 % (1 sigma) of the process's
+    assert np.std(a, axis=0) == pytest.approx([0.15, 0.15], rel=0.15)
+    lag = 1000  # one time constant at 1 kHz
+    r = [float(np.corrcoef(a[:-lag, i], a[lag:, i])[0, 1]) for i in range(2)]
+    assert r == pytest.approx([math.exp(-1.0)] * 2, abs=0.12)
+    # the default keeps the scenario's sinusoidal sway
+    assert np.max(np.abs(sc.drone_hover(seed=3, seconds=5.0).linear[:, :2])) <= 0.3 + 1e-12

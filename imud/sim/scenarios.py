@@ -162,15 +162,39 @@ def reference(
     )  # fmt: skip
 
 
+def gauss_markov(seed: int, sigma: float, tau_s: float, seconds: float, rate_hz: float) -> Vector:
+    """A horizontal linear acceleration drawn from a first-order Gauss-Markov process (standard
+    deviation `sigma` per axis, time constant `tau_s`, stationary from the first sample), held
+    between its samples: the orientation filter's own model of the platform's acceleration."""
+    n = round(seconds * rate_hz) + 1
+    rng = np.random.default_rng(seed + 2000)
+    rho = math.exp(-1.0 / (rate_hz * tau_s))
+    w = rng.normal(0.0, sigma * math.sqrt(1.0 - rho * rho), (n, 2))
+    a = np.empty((n, 2))
+    a[0] = rng.normal(0.0, sigma, 2)
+    for k in range(1, n):  # a recursion: once per scenario, outside any filter's timing
+        a[k] = rho * a[k - 1] + w[k]
+
+    def linear(t: F64) -> F64:
+        k = np.minimum(np.round(t * rate_hz).astype(np.int64), n - 1)
+        return np.column_stack([a[k], np.zeros(len(t))])
+
+    return linear
+
+
 def drone_hover(
     seed: int = 0,
     seconds: float = 60.0,
     mag: bool = False,
     bias_deg_s: tuple[float, float, float] | None = None,
+    hold_sigma: float | None = None,
 ) -> Scenario:
     """A multirotor holding position: a few degrees of slow attitude corrections, a slow yaw,
     and its motors' 100 Hz vibration (with the 200 Hz harmonic) shaking the sensor: 4 m/s^2 of
-    linear and 20 deg/s of angular vibration, plus the small accelerations that hold it in place."""
+    linear and 20 deg/s of angular vibration, plus the small accelerations that hold it in place
+    (a 0.3 m/s^2 sway; with `hold_sigma`, a Gauss-Markov process of that standard deviation and a
+    1-s time constant instead: the orientation filter's own model, to check its consistency
+    where the model holds)."""
     ph = np.random.default_rng(seed + 1000).uniform(0, 2 * np.pi, 8)
 
     def euler(t: F64) -> tuple[F64, F64, F64]:
@@ -207,8 +231,8 @@ def drone_hover(
     return make(
         "drone_hover", euler, seconds, 1000.0, bias_deg_s=bias_deg_s or (0.4, -0.3, 0.5),
         gyro_density=0.005 * DEG, accel_density=400 * MICRO_G, seed=seed,
-        linear=hold, vibration=shake, angular_vibration=wobble,
-        mag_sigma=0.3e-6 if mag else None,
+        linear=hold if hold_sigma is None else gauss_markov(seed, hold_sigma, 1.0, seconds, 1000.0),
+        vibration=shake, angular_vibration=wobble, mag_sigma=0.3e-6 if mag else None,
     )  # fmt: skip
 
 
