@@ -86,7 +86,12 @@ def test_two_stim300s_through_the_daemon(tmp_path: Path) -> None:
     assert float(temp.mean()) == pytest.approx(25.0, abs=0.5)
     chip = st["clean"]["chip_status"]
     assert chip["datagram"] == "0xA7 rate_acc_incl_temp"
-    assert st["clean"]["chip_counters"] == {"crc_errors": 0}
+    # a pty, like a UART, drops what a reader too busy to keep up leaves in the host's buffer
+    # (imud/sim/pty.py), and a datagram cut short fails its CRC: on a busy machine the clean link
+    # can show a few. Each is a datagram lost, so they never outnumber the samples lost; a wrong
+    # CRC would fail every datagram and leave no data at all
+    assert set(st["clean"]["chip_counters"]) == {"crc_errors"}
+    assert st["clean"]["chip_counters"]["crc_errors"] <= st["clean"]["lost_samples"]
 
     dmg = st["damaged"]["chip_status"]
     assert set(by["damaged"][0].channels) == {Channel.ACCEL, Channel.GYRO}
