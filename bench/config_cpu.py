@@ -4,7 +4,9 @@ Copies the config with its Zenoh listen endpoint moved to a free loopback port, 
 on it, waits until every device runs, lets it settle, then over the window reads each process's
 utime+stime from /proc/<pid>/stat (the daemon and each bus process, whose pids and buses the
 status queryable names) and each device's samples and lost samples from `imud status --json`.
-Simulators run inside the bus processes, so a simulated config's figures include them.
+Simulators run inside the bus processes; each bus process reports its CPU time and the
+simulators' part of it (`imud/sim/cpu.py`), so the table splits each process into the two and
+gives imud's own cost per sample.
 
     .venv/bin/python bench/config_cpu.py --config configs/sim.toml
     .venv/bin/python bench/config_cpu.py --config configs/sim-all.toml --seconds 20
@@ -95,15 +97,29 @@ def report(
 ) -> None:
     print(f"{args.config}: {args.seconds:g} s window after {args.warmup:g} s, "
           f"{os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}")  # fmt: skip
-    total = 0.0
+    total = sim_total = 0.0
+    before = {d["name"]: d for d in s0["devices"]}
+    span = s1["uptime_s"] - s0["uptime_s"]  # between the two answers, by the daemon's clock
+    buses0 = {b["bus"]: b for b in s0.get("buses", [])}
+    buses1 = {b["bus"]: b for b in s1.get("buses", [])}
+    print("  % of a core: process (from /proc) | simulators | imud's own, and its us a sample")
     for key in pids:
         share = (c1[key] - c0[key]) / CLK_TCK / dt
         total += share
-        names = ", ".join(d["name"] for d in s1["devices"] if on_bus(key, d["bus"]))
-        print(f"  {share:6.1%} of a core  {key:12s} {names}")
-    print(f"  {total:6.1%} of a core  in all")
-    before = {d["name"]: d for d in s0["devices"]}
-    span = s1["uptime_s"] - s0["uptime_s"]  # between the two answers, by the daemon's clock
+        devs = [d for d in s1["devices"] if on_bus(key, d["bus"])]
+        names = ", ".join(d["name"] for d in devs)
+        split = ""
+        b0, b1 = buses0.get(key, {}), buses1.get(key, {})
+        if b0.get("sim_cpu_s") is not None and b1.get("sim_cpu_s") is not None:
+            # both from the bus process's own reports, so they cover the same span
+            cpu = (b1["cpu_s"] - b0["cpu_s"]) / span
+            sim = (b1["sim_cpu_s"] - b0["sim_cpu_s"]) / span
+            sim_total += sim
+            got = sum(d["samples"] - before[d["name"]]["samples"] for d in devs)
+            per = (cpu - sim) * span / max(got, 1) * 1e6
+            split = f" | sim {sim:6.1%} | own {cpu - sim:6.1%}, {per:5.1f} us a sample"
+        print(f"  {share:6.1%}{split}  {key:12s} {names}")
+    print(f"  {total:6.1%} of a core in all, of which simulators {sim_total:.1%}")
     for d in s1["devices"]:
         b = before[d["name"]]
         got = d["samples"] - b["samples"]

@@ -24,6 +24,7 @@ import signal
 import socket
 import sys
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -44,6 +45,7 @@ from imud.config import parse_config
 from imud.emit import Publish
 from imud.logsetup import setup_logging
 from imud.reload import BusPlan
+from imud.sim.cpu import total_ns as sim_cpu_ns
 
 STATUS_EVERY_S = 0.2
 SNDBUF = 4 << 20
@@ -72,7 +74,15 @@ def _report(sock: socket.socket, worker: BusWorker) -> None:
         devices = [r.status().to_json() for r in runners]
         if worker.generation != generation:  # the device list changed meanwhile: next time
             continue
-        body = {"heartbeat_ns": worker.heartbeat_ns, "generation": generation, "devices": devices}
+        body = {
+            "heartbeat_ns": worker.heartbeat_ns,
+            "generation": generation,
+            "devices": devices,
+            # the process's CPU, and the simulators' part of it (zero on silicon): imud's own
+            # cost is the difference
+            "cpu_s": round(time.process_time(), 4),
+            "sim_cpu_s": round(sim_cpu_ns() / 1e9, 4),
+        }
         try:
             sock.send(STATUS + json.dumps(body).encode(), socket.MSG_DONTWAIT)
         except BlockingIOError:

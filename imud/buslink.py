@@ -327,6 +327,8 @@ class BusLink:
         self.backoff = Backoff(RESTART_MIN_NS, RESTART_MAX_NS)
         self.restarts = 0
         self.last_error: str | None = None
+        self.cpu_s: float | None = None  # the bus process's CPU time, as it last reported
+        self.sim_cpu_s: float | None = None  # the simulators' part of it
         self._recv_buf = _recv_buffer()
 
     @property
@@ -447,6 +449,7 @@ class BusLink:
             elif tag == STATUS:
                 body = json.loads(view[1:n].tobytes())
                 self.worker_heartbeat_ns = int(body["heartbeat_ns"]) or time.monotonic_ns()
+                self.cpu_s, self.sim_cpu_s = body.get("cpu_s"), body.get("sim_cpu_s")
                 self._reported = True
                 if int(body.get("generation", 0)) == self._generation:
                     for v, st in zip(self.views, body["devices"], strict=True):

@@ -153,7 +153,14 @@ class Daemon:
 
     def status(self) -> dict[str, Any]:
         buses = [
-            {"bus": w.key, "pid": w.pid, "restarts": w.restarts, "last_error": w.last_error}
+            {
+                "bus": w.key,
+                "pid": w.pid,
+                "restarts": w.restarts,
+                "last_error": w.last_error,
+                "cpu_s": w.cpu_s,
+                "sim_cpu_s": w.sim_cpu_s,
+            }
             for w in self.links
         ]
         return {

@@ -33,6 +33,7 @@ from imud.errors import (
 from imud.meters import LatenessMeter, LossLog, RateMeter
 from imud.pipeline import Pipeline, build_pipeline
 from imud.sim.api import SimChip
+from imud.sim.cpu import counted
 from imud.status import DeviceState, DeviceStatus
 from imud.wire import KIND_TRUTH, encode
 
@@ -347,7 +348,7 @@ class DeviceRunner:
     def _publish_truth(self) -> None:
         if self.sim is None or self.publish_truth is None:
             return
-        t = self.sim.drain_truth()
+        t = counted(self.sim.drain_truth)()  # the truth is the simulator's work
         if t is not None:
             self.publish_truth(
                 encode(

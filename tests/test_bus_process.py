@@ -152,6 +152,34 @@ def test_bus_process_runs_no_network_thread(tmp_path: Path) -> None:
     assert code == 0, d.log.read_text()
 
 
+def test_a_bus_process_reports_its_cpu_and_the_simulators_part(tmp_path: Path) -> None:
+    """Each bus process reports its CPU time and the part its simulators spent (what imud's own
+    cost leaves out). The simulators' part is within the process's; the process's is what /proc
+    says it used by then; and both grow while it runs."""
+    d = DaemonProc(tmp_path, TWO_BUSES)
+    try:
+        d.wait_started()
+        time.sleep(1.5)  # past a status report or two
+        first = {b["bus"]: b for b in d.status()["buses"]}
+        ticks = {key: _cpu_s(b["pid"]) for key, b in first.items()}
+        time.sleep(1.5)
+        later = {b["bus"]: b for b in d.status()["buses"]}
+    finally:
+        code, _ = d.stop()
+    assert code == 0, d.log.read_text()
+    assert set(first) == {"sim:simA", "sim:simB"}
+    for key, b in first.items():
+        assert 0.0 < b["sim_cpu_s"] <= b["cpu_s"], b
+        # the report came before /proc was read, and /proc counts in 10 ms ticks
+        assert b["cpu_s"] <= ticks[key] + 0.02, (b, ticks[key])
+        assert later[key]["sim_cpu_s"] > b["sim_cpu_s"] and later[key]["cpu_s"] > b["cpu_s"]
+
+
+def _cpu_s(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def test_single_process_mode_streams_too(tmp_path: Path) -> None:
     d = DaemonProc(tmp_path, "[daemon]\nbus_processes = false\n" + TWO_BUSES)
     try:

@@ -54,7 +54,8 @@ def test_two_stim300s_through_the_daemon(tmp_path: Path) -> None:
         # wide as the machine is busy, and the fit's first seconds follow them)
         time.sleep(2.0)
         raw = d.collect("imud/*/imu", 3.0)
-        st = {x["name"]: x for x in d.status()["devices"]}
+        full = d.status()
+        st = {x["name"]: x for x in full["devices"]}
     finally:
         code, _ = d.stop()
     assert code == 0, d.log.read_text()
@@ -92,6 +93,9 @@ def test_two_stim300s_through_the_daemon(tmp_path: Path) -> None:
     # CRC would fail every datagram and leave no data at all
     assert set(st["clean"]["chip_counters"]) == {"crc_errors"}
     assert st["clean"]["chip_counters"]["crc_errors"] <= st["clean"]["lost_samples"]
+
+    # the pty pumps that stand in for the units' RS422 links count as the simulators' CPU
+    assert full["buses"] and all(0.0 < b["sim_cpu_s"] <= b["cpu_s"] for b in full["buses"])
 
     dmg = st["damaged"]["chip_status"]
     assert set(by["damaged"][0].channels) == {Channel.ACCEL, Channel.GYRO}

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from imud.sim.api import SimDie
+from imud.sim.cpu import counted
 from imud.sim.faults import Fault, TransferFaults
 
 I2C_M_RD = 0x0001
@@ -78,12 +79,14 @@ class SimI2CBus:
         if e is not None:
             raise e
 
+    @counted
     def read_byte_data(self, i2c_addr: int, register: int, force: bool | None = None) -> int:
         with self._lock:
             value = self._chip(i2c_addr).read(register, 1)[0]
             self._done()
             return value
 
+    @counted
     def write_byte_data(
         self, i2c_addr: int, register: int, value: int, force: bool | None = None
     ) -> None:
@@ -91,6 +94,7 @@ class SimI2CBus:
             self._chip(i2c_addr).write(register, bytes([value & 0xFF]))
             self._done()
 
+    @counted
     def read_i2c_block_data(
         self, i2c_addr: int, register: int, length: int, force: bool | None = None
     ) -> list[int]:
@@ -101,6 +105,7 @@ class SimI2CBus:
             self._done()
             return data
 
+    @counted
     def write_i2c_block_data(
         self, i2c_addr: int, register: int, data: list[int], force: bool | None = None
     ) -> None:
@@ -108,6 +113,7 @@ class SimI2CBus:
             self._chip(i2c_addr).write(register, bytes(data))
             self._done()
 
+    @counted
     def i2c_rdwr(self, *msgs: Any) -> None:
         """Combined transfers: [write(reg)] + read(n), or a single write(reg, data...)."""
         with self._lock:

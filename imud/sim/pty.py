@@ -19,6 +19,7 @@ import tty
 
 from imud.clock import Clock
 from imud.sim.api import StreamDie
+from imud.sim.cpu import ThreadMeter
 
 log = logging.getLogger("imud.sim")
 
@@ -40,6 +41,7 @@ class PtyLink:
         self.bytes_in = 0
         self.bytes_out = 0
         self._stop = threading.Event()
+        self._meter = ThreadMeter()  # the pump is wholly the simulator's
         self._thread = threading.Thread(target=self._run, name=f"pty {self.path}", daemon=True)
         self._thread.start()
 
@@ -67,6 +69,7 @@ class PtyLink:
     def _run(self) -> None:
         try:
             while not self._stop.is_set():
+                self._meter.tick()
                 readable, _, _ = select.select([self.master], [], [], self._wait_s())
                 if readable:
                     try:
@@ -84,6 +87,9 @@ class PtyLink:
                 log.warning("simulated serial link %s: %s", self.path, e)
         except Exception:
             log.exception("simulated serial link %s failed", self.path)
+        finally:
+            self._meter.tick()
+            self._meter.close()
 
     def _send(self, out: bytes) -> None:
         try:

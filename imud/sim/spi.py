@@ -13,6 +13,7 @@ import numpy as np
 
 from imud.clock import VirtualClock
 from imud.sim.api import SimDie
+from imud.sim.cpu import counted
 from imud.sim.faults import Fault, TransferFaults
 
 FLOATING = (Fault.NAK, Fault.GARBLE, Fault.GONE)  # SPI has no acknowledge: MISO reads high
@@ -49,6 +50,7 @@ class SimSpiDev:
         self._lock = threading.Lock()
         self.transfers = 0
 
+    @counted
     def xfer2(
         self, values: list[int], speed_hz: int = 0, delay_usecs: int = 0, bits_per_word: int = 0
     ) -> list[int]:

@@ -13,6 +13,7 @@ import threading
 import numpy as np
 
 from imud.sim.api import SpiFrameDie
+from imud.sim.cpu import counted
 from imud.sim.faults import Fault, TransferFaults
 from imud.sim.spi import FLOATING, raise_for
 
@@ -34,6 +35,7 @@ class SimSpiFrames:
         self._lock = threading.Lock()
         self.transfers = 0
 
+    @counted
     def xfer2(
         self, values: list[int], speed_hz: int = 0, delay_usecs: int = 0, bits_per_word: int = 0
     ) -> list[int]:
