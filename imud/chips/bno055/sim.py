@@ -32,10 +32,11 @@ against silicon:
 from __future__ import annotations
 
 import math
+import struct
 import threading
 from collections import deque
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -53,7 +54,7 @@ from imud.chips.bno055.noise import (
 from imud.chips.bno055.registers import Page0 as P0
 from imud.chips.bno055.registers import Page1 as P1
 from imud.clock import Clock
-from imud.rotations import quat_conj, quat_from_axis_angle, quat_from_matrix, quat_mul, quat_rotate
+from imud.rotations import quat_conj, quat_from_axis_angle, quat_from_matrix
 from imud.sim.api import SimDie, StreamDie, Truth
 from imud.sim.chip import TRUTH_KEEP, SampledChip
 from imud.sim.filters import NoiseStream, enbw_fir
@@ -79,6 +80,7 @@ FIGURES = ChipFigures(
 
 RATE_HZ = 100.0
 MAG_EVERY = MAG_HOLD  # the magnetometer updates at 20 Hz in the fusion modes
+AHEAD = 25  # samples whose physics is computed at once, ahead (a quarter of a second)
 RESET_BUSY_NS = 650_000_000
 TO_MODE_NS = 7_000_000  # CONFIGMODE -> operation mode
 TO_CONFIG_NS = 19_000_000  # operation mode -> CONFIGMODE
@@ -131,6 +133,50 @@ def _i16(values: F64) -> bytes:
     return clipped.astype("<i2").tobytes()
 
 
+def _i16s(values: list[float]) -> bytes:
+    """As `_i16`, for a few Python floats (round half to even, as np.rint)."""
+    return struct.pack(f"<{len(values)}h", *(min(max(round(v), -32768), 32767) for v in values))
+
+
+def _qmul(a: tuple[float, ...], b: tuple[float, ...]) -> tuple[float, float, float, float]:
+    """The Hamilton product of two quaternions as tuples (w, x, y, z)."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+class _Physics:
+    """What the chip sensed at a run of grid instants: the truth and the sensors' readings."""
+
+    def __init__(self, t_ns: npt.NDArray[np.int64], *arrays: F64) -> None:
+        self.t_ns = t_ns
+        self.k0 = 0  # the grid index of the first
+        self._arrays = arrays  # accel, gyro, orientation, temperature, accel and gyro
+        # readings, field in the body, field reading
+
+    def part(self, i: int, j: int) -> _Physics:
+        return _Physics(self.t_ns[i:j], *(a[i:j] for a in self._arrays))
+
+    def arrays(self) -> tuple[F64, ...]:
+        return self._arrays
+
+
+class _OutputSetup(NamedTuple):
+    key: tuple[object, ...]
+    remap: F64
+    acc_off: F64
+    gyr_off: F64
+    mag_off: F64
+    err: tuple[float, ...]  # the fusion's orientation error at its calibration level
+    world: tuple[float, ...]  # its world reference
+    remap_q: tuple[float, ...]  # the axis remap's rotation, after the truth
+
+
 def _yaw(q: F64) -> float:
     w, x, y, z = (float(v) for v in q)
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
@@ -158,6 +204,8 @@ class Bno055Sim(SampledChip):
         self.lock = threading.RLock()  # the pty pump and the bus worker (truth) both come here
         self.uart = UartFrontEnd(self, serial_baud, settings, seeds[2]) if serial_baud else None
         self.resets = 0
+        self._setup: _OutputSetup | None = None
+        self._ahead: _Physics | None = None  # samples computed ahead (`_physics_of`)
         # fusion mode locks the filters at accel 62.5 Hz and gyro 32 Hz (noise.py); at 100 Hz
         # out only the gyro's narrows the noise, the accel's band is above the Nyquist and
         # aliases: white, drawn at that band's variance; no delay is published (0)
@@ -175,6 +223,7 @@ class Bno055Sim(SampledChip):
 
     # --- state ------------------------------------------------------------------------------
     def _power_on_reset(self) -> None:
+        self._ahead = None
         self.p0 = bytearray(128)
         self.p1 = bytearray(128)
         for reg, val in _PAGE0_DEFAULTS.items():
@@ -215,7 +264,7 @@ class Bno055Sim(SampledChip):
         return (min(used) << 6) | (lv["gyro"] << 4) | (lv["accel"] << 2) | lv["mag"]
 
     # --- sampling ---------------------------------------------------------------------------
-    def _produce(self, t_ns: npt.NDArray[np.int64]) -> None:
+    def _physics(self, t_ns: npt.NDArray[np.int64]) -> _Physics:
         t_s = (t_ns - self.t_origin_ns) / 1e9
         f, w = self.motion.sample(t_s)
         q = self.motion.orientation(t_s)
@@ -226,7 +275,31 @@ class Bno055Sim(SampledChip):
         wm = e.gyro.deterministic(t_s, w, temp)
         wm += self._noise[1].draw(rng, e.gyro.noise * self._aliased[1], self.rate_hz, n)
         b = self.field.in_body(q)
-        mm = self.field.measure(b)
+        return _Physics(t_ns, f, w, q, temp, fm, wm, b, self.field.measure(b))
+
+    def _physics_of(self, t_ns: npt.NDArray[np.int64]) -> _Physics:
+        """The physics of the samples at `t_ns` (the grid's next ones), from a block computed
+        ahead: a read every few ms finds one sample due at a time, and the models' cost is per
+        call, not per sample. A block is the grid's next AHEAD samples; a new grid (a mode
+        switch) or a reset starts another."""
+        n = t_ns.shape[0]
+        blk, k = self._ahead, self.next_k
+        if blk is not None and blk.k0 <= k and k + n <= blk.k0 + blk.t_ns.shape[0]:
+            i = k - blk.k0
+            if np.array_equal(blk.t_ns[i : i + n], t_ns):
+                return blk.part(i, i + n)
+        period = 1e9 / self.rate_hz
+        _, grid = next(self._grid(k, k + max(n, AHEAD) - 1, period))
+        if not np.array_equal(grid[:n], t_ns):  # not the grid's: compute just these
+            self._ahead = None
+            return self._physics(t_ns)
+        blk = self._physics(grid)
+        blk.k0 = k
+        self._ahead = blk
+        return blk.part(0, n)
+
+    def _produce(self, t_ns: npt.NDArray[np.int64]) -> None:
+        f, w, q, temp, fm, wm, b, mm = self._physics_of(t_ns).arrays()
         n = t_ns.shape[0]
         k = self.samples_produced + np.arange(n)
         latch = np.flatnonzero(k % MAG_EVERY == 0)
@@ -304,42 +377,78 @@ class Bno055Sim(SampledChip):
             m[i, (cfg >> (2 * i)) & 3] = -1.0 if sign & (4 >> i) else 1.0
         return m
 
+    def _output_setup(self) -> _OutputSetup:
+        """What the outputs take from the registers and the fusion state, remade only when one
+        of them changed (a sample's outputs then cost scalar arithmetic, not array calls)."""
+        p = self.p0
+        key = (
+            bytes(p[0x55:0x67]),
+            p[P0.UNIT_SEL],
+            p[P0.AXIS_MAP_CONFIG],
+            p[P0.AXIS_MAP_SIGN],
+            self.fusion,
+            self.calib_stat(),
+            self.world_ref.tobytes(),
+        )
+        setup = self._setup
+        if setup is not None and setup.key == key:
+            return setup
+        unit = p[P0.UNIT_SEL]
+        m = self._remap()
+        acc_off = gyr_off = mag_off = np.zeros(3)
+        if self.fusion:  # offset compensated by what the profile registers hold
+            acc_off = self._profile(0x55, 100.0 if not unit & _ACC_MG else 1 / (G * 1e-3))
+            gyr_off = self._profile(0x61, 900.0 if unit & _GYR_RPS else 16 * 180 / math.pi)
+            mag_off = self._profile(0x5B, 16e6)
+        sys_level = self.calib_stat() >> 6
+        err = quat_from_axis_angle(self.error_axis, math.radians(ERROR_DEG[sys_level]))
+        setup = _OutputSetup(
+            key, m, acc_off, gyr_off, mag_off,
+            tuple(err.tolist()),
+            tuple(self.world_ref.tolist()),
+            tuple(quat_conj(quat_from_matrix(m)).tolist()),
+        )  # fmt: skip
+        self._setup = setup
+        return setup
+
     def _outputs(self, acc: F64, gyr: F64, q_true: F64, temp_c: float) -> None:
         """The newest sample into the data registers, as the mode and UNIT_SEL make it."""
         p = self.p0
         unit = p[P0.UNIT_SEL]
-        mag = self.mag_latched.copy()
-        if self.fusion:  # offset compensated by what the profile registers hold
-            acc = acc - self._profile(0x55, 100.0 if not unit & _ACC_MG else 1 / (G * 1e-3))
-            gyr = gyr - self._profile(0x61, 900.0 if unit & _GYR_RPS else 16 * 180 / math.pi)
-            mag = mag - self._profile(0x5B, 16e6)
-        m = self._remap()
-        acc, gyr, mag = m @ acc, m @ gyr, m @ mag
+        c = self._output_setup()
+        m = c.remap
+        acc, gyr, mag = (
+            m @ (acc - c.acc_off),
+            m @ (gyr - c.gyr_off),
+            m @ (self.mag_latched - c.mag_off),
+        )
         acc_lsb = G * 1e-3 if unit & _ACC_MG else 0.01
         full = ACC_FULL_SCALE_G * G / acc_lsb
-        p[0x08:0x0E] = _i16(np.clip(acc / acc_lsb, -full, full))
-        p[0x0E:0x14] = _i16(mag * 1e6 * 16.0)
+        ax, ay, az = acc.tolist()
+        p[0x08:0x0E] = _i16s([min(max(v / acc_lsb, -full), full) for v in (ax, ay, az)])
+        p[0x0E:0x14] = _i16s([v * 1e6 * 16.0 for v in mag.tolist()])
         range_dps = 2000.0 / 2 ** (self.p1[P1.GYR_CONFIG_0] & 0x07)
         if self.fusion:
             per = 900.0 if unit & _GYR_RPS else 16.0 * 180.0 / math.pi
             cap = math.radians(range_dps) * per
         else:  # raw counts: the range over 2^15, in either unit (firmware 3.11)
             per, cap = 2**15 / math.radians(range_dps), 32767.0
-        p[0x14:0x1A] = _i16(np.clip(gyr * per, -cap, cap))
-        p[0x34] = int(np.clip(round(temp_c), -128, 127)) & 0xFF
+        p[0x14:0x1A] = _i16s([min(max(v * per, -cap), cap) for v in gyr.tolist()])
+        p[0x34] = min(max(round(temp_c), -128), 127) & 0xFF
         p[0x35] = self.calib_stat()
         if not self.fusion:
             p[0x1A:0x34] = bytes(0x34 - 0x1A)
             return
-        sys_level = self.calib_stat() >> 6
-        err = quat_from_axis_angle(self.error_axis, math.radians(ERROR_DEG[sys_level]))
-        q = quat_mul(err, quat_mul(self.world_ref, q_true))
-        q = quat_mul(q, quat_conj(quat_from_matrix(m)))  # body axes as remapped
-        grv = quat_rotate(quat_conj(q), np.array([0.0, 0.0, G]))
+        w, x, y, z = _qmul(_qmul(c.err, _qmul(c.world, tuple(q_true.tolist()))), c.remap_q)
+        # gravity in the (remapped) body, the world's (0, 0, G) turned by the inverse of q: the
+        # operations of `quat_rotate(quat_conj(q), (0, 0, G))` in its order, so the same bits
+        gx = w * (2.0 * -(y * G)) + z * (2.0 * (x * G))
+        gy = w * (2.0 * (x * G)) + z * (2.0 * (y * G))
+        gz = G + (-(x * (2.0 * (x * G))) - y * (2.0 * (y * G)))
         p[0x1A:0x20] = bytes(6)
-        p[0x20:0x28] = _i16(q * 16384.0)
-        p[0x28:0x2E] = _i16((acc - grv) / acc_lsb)
-        p[0x2E:0x34] = _i16(grv / acc_lsb)
+        p[0x20:0x28] = _i16s([w * 16384.0, x * 16384.0, y * 16384.0, z * 16384.0])
+        p[0x28:0x2E] = _i16s([(ax - gx) / acc_lsb, (ay - gy) / acc_lsb, (az - gz) / acc_lsb])
+        p[0x2E:0x34] = _i16s([gx / acc_lsb, gy / acc_lsb, gz / acc_lsb])
 
     # --- modes ------------------------------------------------------------------------------
     def _set_mode(self, mode: int, now: int) -> None:
