@@ -43,7 +43,7 @@ from imud.sim.settings import SimSettings
 CHUNK = 50_000
 # a chip's register and FIFO contents for a run of samples, row i for sample i (counts, frames)
 Encoded = dict[str, npt.NDArray[Any]]
-STAGE_NS = 20_000_000  # how far ahead a staging simulator computes its samples
+STAGE_NS = 100_000_000  # how far ahead a staging simulator computes its samples
 TRUTH_KEEP = 10_000  # truth chunks kept when nobody drains them
 # clock reads at most per access while each hands the FIFO a sample that came due meanwhile (a
 # chip whose period is shorter than a hand-over would otherwise be chased for ever)
