@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import shutil
 import socket
+import subprocess
 import sys
 from pathlib import Path
 
@@ -36,3 +37,18 @@ def imud_executable() -> str:
     if found is None:
         raise SystemExit("cannot find the `imud` console script (is the package installed?)")
     return found
+
+
+def tables_per_tree(child: str, trees: list[str], args: list[str], title: str, header: str) -> None:
+    """Run `child` (a script's source) once per source tree, each in its own process (so each
+    imports its own `imud`, the tree being its first argument and `args` the rest), and print
+    its rows under `title` (with `{tree}` in it) and the Markdown table `header`."""
+    columns = header.count("|") - 1
+    for tree in trees:
+        out = subprocess.run(
+            [sys.executable, "-c", child, tree, *args], capture_output=True, text=True, check=True
+        ).stdout.rstrip()
+        print("\n" + title.format(tree=tree) + "\n")
+        print(header)
+        print("|" + "---|" * columns)
+        print(out)

@@ -20,8 +20,8 @@ the two cases a vibration sees differently.
 from __future__ import annotations
 
 import argparse
-import subprocess
-import sys
+
+from common import tables_per_tree
 
 CHILD = r"""
 import sys
@@ -74,15 +74,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--batch", type=int, default=32, help="samples a batch (default 32)")
     ap.add_argument("trees", nargs="*", default=["."], help="source trees (default .)")
     args = ap.parse_args(argv)
-    for tree in args.trees:
-        out = subprocess.run(
-            [sys.executable, "-c", CHILD, tree, str(args.batch)],
-            capture_output=True, text=True, check=True,
-        ).stdout.rstrip()  # fmt: skip
-        print(f"\n{tree}, batches of {args.batch}\n")
-        print(HEADER)
-        print("|---|---|---|---|---|---|---|")
-        print(out)
+    tables_per_tree(
+        CHILD, args.trees, [str(args.batch)], "{tree}, batches of " + str(args.batch), HEADER
+    )
     return 0
 
 

@@ -18,8 +18,8 @@ deviation the filter learned (truth: `--sigma`) and the white scatter it took as
 from __future__ import annotations
 
 import argparse
-import subprocess
-import sys
+
+from common import tables_per_tree
 
 CHILD = r"""
 import sys
@@ -73,15 +73,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sigma", type=float, default=0.15, help="m/s^2 per axis (default 0.15)")
     ap.add_argument("trees", nargs="*", default=["."], help="source trees (default .)")
     args = ap.parse_args(argv)
-    for tree in args.trees:
-        out = subprocess.run(
-            [sys.executable, "-c", CHILD, tree, str(args.batch), str(args.sigma)],
-            capture_output=True, text=True, check=True,
-        ).stdout.rstrip()  # fmt: skip
-        print(f"\n{tree}, batches of {args.batch}, holding accelerations {args.sigma} m/s^2\n")
-        print(HEADER)
-        print("|---|---|---|---|---|---|---|---|")
-        print(out)
+    tables_per_tree(
+        CHILD,
+        args.trees,
+        [str(args.batch), str(args.sigma)],
+        f"{{tree}}, batches of {args.batch}, holding accelerations {args.sigma} m/s^2",
+        HEADER,
+    )
     return 0
 
 
