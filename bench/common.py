@@ -52,3 +52,23 @@ def tables_per_tree(child: str, trees: list[str], args: list[str], title: str, h
         print(header)
         print("|" + "---|" * columns)
         print(out)
+
+
+# The start of a child script (`tables_per_tree`) that averages the tilt NEES of ten draws: the
+# tree's `imud` first on the path, the instants it is taken at, and its 95 % band for the mean
+NEES_CHILD_PRELUDE = r"""
+import sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from imud.orient import metrics as M
+from imud.orient.ekf import NoiseModel, OrientationFilter
+from imud.sim import scenarios as sc
+
+runs = 10
+times = np.arange(5000, 60000, 2500)
+try:
+    from scipy.stats import chi2
+    lo, hi = chi2.ppf([0.025, 0.975], 2 * runs) / runs
+except ImportError:  # chi2(20) quantiles
+    lo, hi = 9.591 / runs, 34.170 / runs
+"""

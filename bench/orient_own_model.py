@@ -19,23 +19,10 @@ from __future__ import annotations
 
 import argparse
 
-from common import tables_per_tree
+from common import NEES_CHILD_PRELUDE, tables_per_tree
 
-CHILD = r"""
-import sys
-import numpy as np
-sys.path.insert(0, sys.argv[1])
-from imud.orient import metrics as M
-from imud.orient.ekf import NoiseModel, OrientationFilter
-from imud.sim import scenarios as sc
-
-batch, sigma, runs = int(sys.argv[2]), float(sys.argv[3]), 10
-times = np.arange(5000, 60000, 2500)
-try:
-    from scipy.stats import chi2
-    lo, hi = chi2.ppf([0.025, 0.975], 2 * runs) / runs
-except ImportError:  # chi2(20) quantiles
-    lo, hi = 9.591 / runs, 34.170 / runs
+BODY = r"""
+batch, sigma = int(sys.argv[2]), float(sys.argv[3])
 for name, first, bias_first in (("A", 0, 500), ("B", 100, 300)):
     nees, rms, lin, white = [], [], [], []
     for k in range(runs):
@@ -60,6 +47,7 @@ for name, first, bias_first in (("A", 0, 500), ("B", 100, 300)):
           f" | {np.mean(a < lo):.0%} | {a.mean():.2f} | {np.mean(rms):.2f} / {max(rms):.2f}"
           f" | {np.sqrt(np.mean(lin)):.3f} | {np.sqrt(np.mean(white)):.3f} |")
 """
+CHILD = NEES_CHILD_PRELUDE + BODY  # what each tree's process runs
 
 HEADER = (
     "| set | tilt NEES inside | above | below | mean NEES | tilt RMS, mean / worst (deg)"
