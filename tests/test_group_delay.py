@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -186,12 +187,13 @@ def test_adis16465_simulated_outputs_are_delayed_by_their_filters(
     got: list[tuple[np.ndarray, np.ndarray]] = []
     make = sim._make_block
 
-    def keep() -> None:
-        make()
-        k = np.asarray(sim._block.k, dtype=np.float64)
+    def keep() -> Any:
+        block = make()
+        k = np.asarray(block.k, dtype=np.float64)
         t_s = (sim.grid_origin_ns + k * 1e9 / sim.rate_hz - sim.t_origin_ns) / 1e9
-        words = sim._block.rows[:, 1:6:2]  # X/Y/Z_GYRO_OUT, the 16-bit words
+        words = block.rows[:, 1:6:2]  # X/Y/Z_GYRO_OUT, the 16-bit words
         got.append((t_s, words))
+        return block
 
     sim._make_block = keep  # type: ignore[method-assign]
     clock.advance(2_000_000_000)

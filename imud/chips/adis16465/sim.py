@@ -86,6 +86,7 @@ _NINE = struct.Struct(">9H")
 
 
 BLOCK = 128  # internal samples made per NumPy pass, ahead of time (64 ms)
+AHEAD_LEFT = 2  # outputs of the current block still to latch when the next one is made
 # output registers -> column of an output sample's words: gyro and accel _LOW/_OUT (0x04 ...
 # 0x1A), the deltas' (0x24 ... 0x3A), TEMP_OUT
 _COL = {
@@ -195,6 +196,9 @@ class Adis16465Sim(SampledChip):
         self._hist: F64 | None = None  # the Bartlett filter's last inputs (taps - 1, 6)
         self._block = _Block.empty()
         self._oi = 0  # the block's next output not yet due
+        self._ahead: _Block | None = None  # the block after it, made at the end of a read
+        self._words_read = 0  # output registers read by frame since the last burst
+        self._words_after = False  # and before it: the reader reads words after its bursts
 
     def _wake(self) -> None:
         """End a command whose busy time is over."""
@@ -234,7 +238,21 @@ class Adis16465Sim(SampledChip):
                 self._latch(self._oi, end)
                 if end < len(ks):
                     return
-            self._make_block()
+            self._block, self._ahead = self._ahead or self._make_block(), None
+            self._oi = 0
+
+    def _make_ahead(self) -> None:
+        """Make the next block once this one is nearly latched, at the end of a sample's reads.
+
+        Making a block takes a good part of a period at 2 kHz (more with a cold cache), host
+        time silicon does not take. Inside the DATA_CNTR poll that begins a sample's read it
+        would delay the burst after it past the next latch and lose the polled sample; between
+        a burst and the delta words after it, it would let the next sample overtake them. So
+        it is done where a reader has the most slack: once the sample's last word is answered,
+        which is the burst for a reader that reads nothing after it, and the DATA_CNTR
+        re-check for one that reads words after the burst (`_words_read`)."""
+        if self._ahead is None and self.sampling and len(self._block.k) - self._oi <= AHEAD_LEFT:
+            self._ahead = self._make_block()
 
     @property
     def filt(self) -> int:
@@ -260,7 +278,7 @@ class Adis16465Sim(SampledChip):
         fm += self._noise[1].draw(rng, e.accel.noise, self.rate_hz, n)
         return t_ns, temp, f, w, np.concatenate([wm, fm], axis=1)
 
-    def _make_block(self) -> None:
+    def _make_block(self) -> _Block:
         """The next internal samples (at least BLOCK, and enough for one output), measured,
         through the Bartlett window, and true, into output samples: their mean, and the
         trapezoid sums of the deltas. The truth is the motion the outputs stand for: the
@@ -306,13 +324,12 @@ class Adis16465Sim(SampledChip):
             Channel.DELTA_VELOCITY: traps[:, 9:12] / self.rate_hz,
         }
         delay_ns = self.group_delay_samples() * 1e9 / self.rate_hz
-        self._block = _Block(
+        return _Block(
             k[ends].astype(np.int64).tolist(),
             self._words(mean, traps, temp[ends], D == 1),
             t_ns[ends] - np.int64(round(delay_ns)),
             truth,
         )
-        self._oi = 0
 
     def _words(self, mean: F64, traps: F64, temp: F64, whole16: bool) -> npt.NDArray[np.int64]:
         """Each output sample's register words, in `_COL` order: gyro and accel 32-bit
@@ -400,6 +417,8 @@ class Adis16465Sim(SampledChip):
             self.register_reads += 1
             self.reads_this_period += 1
             reg = (cmd >> 8) & 0x7E
+            if reg in _COL:
+                self._words_read += 1
             if reg in _COL or reg == Reg.DATA_CNTR:
                 self.advance()
             if self.reads_this_period > R.READS_PER_DR * self.dec:
@@ -408,6 +427,8 @@ class Adis16465Sim(SampledChip):
                 self.pending, self.diag = self.diag, 0
             elif reg != Reg.GLOB_CMD:  # write only: reads 0
                 self.pending = self._register(reg)
+            if reg == Reg.DATA_CNTR and self._words_read:  # the re-check after the words
+                self._make_ahead()
         if speed_hz > R.MAX_SCLK_HZ:
             answer ^= int(self._glitch.integers(1, 0x10000))
         return answer.to_bytes(2, "big")
@@ -425,7 +446,11 @@ class Adis16465Sim(SampledChip):
         check = sum(data) & 0xFFFF
         if speed_hz > R.MAX_BURST_SCLK_HZ:  # clocked too fast: a byte comes out wrong
             data[int(self._glitch.integers(0, len(data)))] ^= int(self._glitch.integers(1, 256))
-        return answer.to_bytes(2, "big") + bytes(data) + check.to_bytes(2, "big")
+        out = answer.to_bytes(2, "big") + bytes(data) + check.to_bytes(2, "big")
+        self._words_after, self._words_read = self._words_read > 0, 0
+        if not self._words_after:
+            self._make_ahead()
+        return out
 
     def _write_byte(self, addr: int, value: int) -> None:
         reg = addr & 0x7E
