@@ -14,6 +14,22 @@ from imud.chips.api import ChipCounter, FifoRead
 
 Bracket = tuple[int, int]
 
+# A FIFO read this much after it was due still finds room: a real-time bus worker wakes later than
+# that a few times an hour on the 2-vCPU VM imud is measured on (bench/rt_latency.py, docs/
+# performance.md section 5), and the FIFO chips' largest spans are tens of ms
+LATE_SLACK_NS = 8_000_000
+POLL_MAX_NS = 50_000_000  # a sample waits at most this long in a slow chip's FIFO
+
+
+def fifo_poll_interval_ns(capacity: int, period_ns: float) -> int:
+    """How long between reads of a FIFO of `capacity` samples at `period_ns`: half its span
+    when the other half still leaves LATE_SLACK_NS for a late wake-up, else a quarter (the
+    ICM-42688-P's 4 ms at 32 kHz). The cost of a read is mostly per read, not per sample, so
+    fuller reads are cheaper per sample; the clock fit needs no more reads than this."""
+    span = capacity * period_ns
+    interval = span / 2 if span / 2 >= LATE_SLACK_NS else span / 4
+    return int(min(POLL_MAX_NS, interval))
+
 
 class FifoTiming:
     def __init__(self) -> None:

@@ -23,7 +23,7 @@ from imud.buses.registers import RegisterDevice
 from imud.channels import Channel
 from imud.chips.api import ChipCounter, DriverCounters, RawBatch, RawChannel
 from imud.chips.bits import BitField
-from imud.chips.fifotiming import FifoTiming
+from imud.chips.fifotiming import FifoTiming, fifo_poll_interval_ns
 from imud.chips.icm42688p import registers as R
 from imud.chips.icm42688p.config import Icm42688pConfig
 from imud.chips.regplan import RegisterChecker, RegisterPlan, RegisterSetting
@@ -240,9 +240,7 @@ class Icm42688pDriver:
         self.fifo_capacity = R.FIFO_SIZE // self.packet
         self.nominal_period_ns = 1e9 / cfg.odr_hz
         self.group_delay_ns = 0  # the filters' delay is not published (docs/timestamps.md)
-        # A quarter of the FIFO between polls: 1 ms at 32 kHz, where the FIFO lasts 4 ms.
-        # Halving it measured no better: twice the polls cost twice the interpreter time.
-        self.poll_interval_ns = int(min(50e6, self.nominal_period_ns * self.fifo_capacity / 4))
+        self.poll_interval_ns = fifo_poll_interval_ns(self.fifo_capacity, self.nominal_period_ns)
         self.next_poll_ns: int | None = None  # a FIFO: polled at its interval
         self.accel_scale = accel_scale_ms2(cfg.accel_range_g, cfg.hires)
         self.gyro_scale = gyro_scale_rads(cfg.gyro_range_dps, cfg.hires)
