@@ -216,9 +216,21 @@ class SampledChip:
             self._stage(now, period)
             self._latch_at_end(period)
             return
-        k_max = math.floor((now - self.grid_origin_ns) / period)
-        if self.lookahead_ns and k_max >= self.next_k:
-            k_max = self._horizon(now, self.lookahead_ns, period)
+        if self.lookahead_ns:
+            k_max = math.floor((now - self.grid_origin_ns) / period)
+            if k_max >= self.next_k:
+                k_max = self._horizon(now, self.lookahead_ns, period)
+            self._produce_to(k_max, period)
+            return
+        # the latch at the end of the access (module doc): producing a sample is work, so the
+        # clock is read again after it, until a read finds nothing more due
+        for _ in range(LATCH_ROUNDS):
+            k_max = math.floor((self.clock.now_ns() - self.grid_origin_ns) / period)
+            if k_max < self.next_k:
+                return
+            self._produce_to(k_max, period)
+
+    def _produce_to(self, k_max: int, period: float) -> None:
         for k_end, t_ns in self._grid(self.next_k, k_max, period):
             self._produce(t_ns)
             self.next_k = k_end + 1
