@@ -4,6 +4,8 @@ exception, which the CLI would show as a traceback."""
 
 from __future__ import annotations
 
+import atexit
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -20,6 +22,7 @@ from imud.recording.schemas import BATCH, batch_cdr
 from imud.wire import encode
 
 _DIR = Path(tempfile.mkdtemp(prefix="imud-fuzz-mcap-"))
+atexit.register(shutil.rmtree, _DIR, ignore_errors=True)  # hypothesis's examples share it
 
 
 def _valid() -> bytes:
