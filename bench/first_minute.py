@@ -44,6 +44,7 @@ def main() -> int:
         try:
             while True:
                 try:
+                    # a client of that loopback endpoint only, multicast scouting off
                     session = zenoh.open(client_config(endpoint))
                     break
                 except zenoh.ZError:
