@@ -23,8 +23,8 @@ POLL_MAX_NS = 50_000_000  # a sample waits at most this long in a slow chip's FI
 
 def fifo_poll_interval_ns(capacity: int, period_ns: float) -> int:
     """How long between reads of a FIFO of `capacity` samples at `period_ns`: half its span
-    when the other half still leaves LATE_SLACK_NS for a late wake-up, else a quarter (the
-    ICM-42688-P's 4 ms at 32 kHz). The cost of a read is mostly per read, not per sample, so
+    when the other half still leaves LATE_SLACK_NS for a late wake-up, else a quarter (a FIFO
+    that lasts a few ms). The cost of a read is mostly per read, not per sample, so
     fuller reads are cheaper per sample; the clock fit needs no more reads than this."""
     span = capacity * period_ns
     interval = span / 2 if span / 2 >= LATE_SLACK_NS else span / 4

@@ -198,7 +198,6 @@ class Adis16465Sim(SampledChip):
         self._oi = 0  # the block's next output not yet due
         self._ahead: _Block | None = None  # the block after it, made at the end of a read
         self._words_read = 0  # output registers read by frame since the last burst
-        self._words_after = False  # and before it: the reader reads words after its bursts
 
     def _wake(self) -> None:
         """End a command whose busy time is over."""
@@ -447,8 +446,9 @@ class Adis16465Sim(SampledChip):
         if speed_hz > R.MAX_BURST_SCLK_HZ:  # clocked too fast: a byte comes out wrong
             data[int(self._glitch.integers(0, len(data)))] ^= int(self._glitch.integers(1, 256))
         out = answer.to_bytes(2, "big") + bytes(data) + check.to_bytes(2, "big")
-        self._words_after, self._words_read = self._words_read > 0, 0
-        if not self._words_after:
+        words_after = self._words_read > 0  # (between the last two bursts: the reader's habit)
+        self._words_read = 0
+        if not words_after:
             self._make_ahead()
         return out
 
