@@ -270,6 +270,7 @@ class DeviceRunner:
         self.next_due_ns = self.now_ns() + self.driver.poll_interval_ns
 
     def stop(self) -> None:
+        self.emitter.flush()  # what is held goes out before the stream ends
         if self.driver is not None and self.state == DeviceState.RUNNING:
             try:
                 self.driver.stop()
@@ -313,6 +314,7 @@ class DeviceRunner:
             self.next_due_ns = wanted
         for batch in batches:
             self.emitter.emit(batch, now)
+        self.emitter.flush_due(now)
         self._publish_truth()
         self.rate.update(now, self.emitter.samples)
 

@@ -18,6 +18,10 @@ from imud.pipeline import SampleBatch
 from imud.wire import FLAG_CALIBRATED, FLAG_GAP_UNCERTAIN, FLAG_RESYNC, encode
 
 Publish = Callable[[bytes], None]
+# a stream of small batches (a chip read once a sample) is published in batches of up to this
+# much of its time: per published batch, the encode, the send and the daemon's relay cost as
+# much as for one sample, and the wait it adds is a few of the chip's periods
+MERGE_NS = 5_000_000
 
 
 def runs(hole: npt.NDArray[np.bool_] | None, n: int) -> list[tuple[int, int]]:
@@ -55,12 +59,57 @@ class Emitter:
         # (next seq, last stamp less the epoch offset) of what was published: where a
         # successor (the device restarted with new settings by a reload) continues
         self.stream_end: tuple[int, int] | None = None
+        self._held: list[SampleBatch] = []  # small batches waiting to go out as one
+        self._held_since = 0  # host time the first of them came
+        self._last_t: int | None = None  # the newest stamp seen
+
+    def emit(self, batch: SampleBatch, now: int) -> None:
+        """Publish `batch`, or hold it to go out with the next ones (MERGE_NS)."""
+        if self._held and not self._joins(batch):
+            self.flush()
+        fast = self._last_t is not None and batch.n and batch.t_ns[0] - self._last_t < MERGE_NS // 2
+        if batch.n:
+            self._last_t = int(batch.t_ns[-1])
+        if self._held:
+            self._held.append(batch)
+            if batch.t_ns[-1] - self._held[0].t_ns[0] >= MERGE_NS // 2:
+                self.flush()
+            return
+        if fast and batch.hole is None and batch.t_ns[-1] - batch.t_ns[0] < MERGE_NS // 2:
+            self._held, self._held_since = [batch], now
+            return
+        self._emit(batch, now)
+
+    def flush_due(self, now: int) -> None:
+        """Publish what is held once it has waited MERGE_NS."""
+        if self._held and now - self._held_since >= MERGE_NS:
+            self.flush()
+
+    def flush(self) -> None:
+        """Publish what is held, as one batch."""
+        held, self._held = self._held, []
+        if held:
+            self._emit(merged(held) if len(held) > 1 else held[0], self._held_since)
+
+    def _joins(self, batch: SampleBatch) -> bool:
+        """`batch` goes on from the held ones with nothing between and nothing different."""
+        first, last = self._held[0], self._held[-1]
+        return (
+            batch.n > 0
+            and batch.lost_before == 0
+            and batch.hole is None
+            and batch.flags == first.flags
+            and batch.first_seq == last.first_seq + last.n
+            and (batch.raw is None) == (first.raw is None)
+            and batch.channels.keys() == first.channels.keys()
+            and batch.t_ns[-1] - first.t_ns[0] < MERGE_NS
+        )
 
     def lost(self, n: int, now: int) -> None:
         self.unpublished_lost += n
         self.on_loss(n, now)
 
-    def emit(self, batch: SampleBatch, now: int) -> None:
+    def _emit(self, batch: SampleBatch, now: int) -> None:
         if batch.lost_before:
             self.lost(batch.lost_before, now)
         if batch.flags & FLAG_GAP_UNCERTAIN:
@@ -107,3 +156,31 @@ class Emitter:
             t = float(temp[-1])
             if t == t:  # not NaN
                 self.temperature_c = t
+
+
+def merged(held: list[SampleBatch]) -> SampleBatch:
+    """Consecutive batches (no gap between, the same flags and channels) as one."""
+    first = held[0]
+    flags = [b.sample_flags for b in held]
+    sample_flags = None
+    if any(f is not None for f in flags):
+        sample_flags = np.concatenate(
+            [
+                np.zeros(b.n, dtype=np.uint32) if f is None else f
+                for b, f in zip(held, flags, strict=True)
+            ]
+        )
+    raw = None
+    if first.raw is not None:
+        raw = {c: np.concatenate([b.raw[c] for b in held if b.raw is not None]) for c in first.raw}
+    return SampleBatch(
+        first.first_seq,
+        first.lost_before,
+        first.flags,
+        np.concatenate([b.t_ns for b in held]),
+        {c: np.concatenate([b.channels[c] for b in held]) for c in first.channels},
+        sample_flags,
+        None,
+        raw,
+        sum(b.outside_span for b in held),
+    )
