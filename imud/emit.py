@@ -65,6 +65,8 @@ class Emitter:
 
     def emit(self, batch: SampleBatch, now: int) -> None:
         """Publish `batch`, or hold it to go out with the next ones (MERGE_NS)."""
+        if not batch.n and not batch.lost_before and not batch.flags & FLAG_GAP_UNCERTAIN:
+            return  # a poll that found nothing: nothing to publish, nothing held to end
         if self._held and not self._joins(batch):
             self.flush()
         fast = self._last_t is not None and batch.n and batch.t_ns[0] - self._last_t < MERGE_NS // 2

@@ -103,3 +103,14 @@ def test_a_slow_stream_is_published_at_once() -> None:
     for k in range(5):
         e.emit(_one(k, 10_000_000), now=k * 10_000_000)
     assert [b.first_seq for b in out] == [0, 1, 2, 3, 4]
+
+
+def test_a_poll_that_found_nothing_does_not_end_what_is_held() -> None:
+    e, out = _emitter()
+    empty = SampleBatch(
+        2, 0, 0, np.zeros(0, dtype=np.int64), {Channel.GYRO: np.zeros((0, 3))}, None
+    )
+    for b in (_one(0, 500_000), _one(1, 500_000), empty, _one(2, 500_000)):
+        e.emit(b, now=0)
+    e.flush()
+    assert [(b.first_seq, len(b.t_ns)) for b in out] == [(0, 1), (1, 2)]
