@@ -42,7 +42,7 @@ def stamp(clock: SampleClock, t: FifoRead, n: int) -> Stamped:
     """Stamps of `n` samples from the chip's sample clock fitted to a read's host-time
     brackets."""
     c = t.counter
-    return clock.update(
+    st = clock.update(
         n,
         t.t_before_ns,
         t.t_after_ns,
@@ -51,7 +51,11 @@ def stamp(clock: SampleClock, t: FifoRead, n: int) -> Stamped:
         full=t.fifo_full,
         ticks=None if c is None else c.values,
         ticks_modulo=0 if c is None else c.modulo,
+        ticks_per_sample=None if c is None else c.per_sample,
     )
+    if c is not None and c.estimated:
+        st.uncertain = True
+    return st
 
 
 def sample_flags(raw: RawBatch) -> U32 | None:

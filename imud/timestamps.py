@@ -42,6 +42,7 @@ SLEW = 0.005
 # sixth of a core): the line moves by ppm between solves, far below a read's bracket
 SOLVE_SETTLED_READS = 200
 SOLVE_EVERY_NS = 10_000_000
+KNOWN_TPS_N = 1 << 62  # the steps behind a counter's ticks a sample that the driver gave
 
 
 class _Ring:
@@ -473,7 +474,9 @@ class SampleClock:
         samples = self._tick_n
         # the estimate follows the baseline as it grows; a new baseline replaces an older
         # estimate once it is as long, or long enough to be good (the ratio is fixed by the
-        # chip's clock tree: it changes only with its clock source)
+        # chip's clock tree: it changes only with its clock source); a known ratio stays
+        if self._tps_n == KNOWN_TPS_N:
+            return
         if samples >= 1 and (self._tps is None or samples >= min(256, self._tps_n)):
             tps = self._tick_u / samples
             if tps < mod // 2:
@@ -677,13 +680,15 @@ class SampleClock:
         full: bool = False,
         ticks: npt.NDArray[np.int64] | None = None,
         ticks_modulo: int = 0,
+        ticks_per_sample: int | None = None,
     ) -> Stamped:
         """Stamp a batch of `n` samples whose newest was latched between the two host times.
 
         `resync`: the FIFO was reset since the last batch; `restart` brackets the instant it was
         re-enabled, when the driver knows it. `full`: a stop-on-full FIFO filled up, so its newest
         sample is not the one latched just before the read: the batch continues the stream but
-        says nothing about the clock's phase."""
+        says nothing about the clock's phase. `ticks_per_sample`: the counter's ticks a sample,
+        when the driver knows them (else learnt)."""
         resync = resync or self._pending_resync
         restart = restart or self._pending_restart
         if n == 0:
@@ -721,6 +726,8 @@ class SampleClock:
             k_new = self.k_last + n
         segment = resync  # the bounds before a gap hold for the line after it only if the gap
         if ticks is not None and ticks_modulo:  # was counted exactly
+            if ticks_per_sample:
+                self._tps, self._tps_n = float(ticks_per_sample), KNOWN_TPS_N
             k_new, advance, silent = self._counted(k_new, n, t_before, t_after, resync, full,
                                                    restart, ticks, ticks_modulo)  # fmt: skip
             self._learn_ticks(k_new - n + 1, n, ticks, ticks_modulo, advance)

@@ -102,10 +102,18 @@ class DeviceBase(BaseModel):
 @dataclass(slots=True)
 class ChipCounter:
     """A per-sample counter on the chip's own clock (a FIFO timestamp, a data counter), modulo
-    `modulo`: it makes the samples lost in a gap countable exactly."""
+    `modulo`: it makes the samples lost in a gap countable exactly. `per_sample`: its ticks a
+    sample, when the driver knows them (a counter of samples, not of time): gaps are then counted
+    by it from the first, where otherwise the ratio is learnt from samples read in a row, and a
+    stream read only across gaps (a chip polled more slowly than it samples, at start-up) would
+    have its gaps counted from host time meanwhile. `estimated`: the driver's own count, which
+    it could not pin up to the first sample (a BNO055's, from read timing alone): the gap before
+    it is published as an estimate (FLAG_GAP_UNCERTAIN), not as counted."""
 
     values: npt.NDArray[np.int64]
     modulo: int
+    per_sample: int | None = None
+    estimated: bool = False
 
 
 @dataclass(slots=True)

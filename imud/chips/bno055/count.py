@@ -6,9 +6,9 @@ exactly.
 A sample's count is exact when the grid pinned its index and has followed the numbering since
 the last sample whose index it pinned. Otherwise (the grid lost its phase, or a sample whose
 read straddled a window and that the next read could not place) it is estimated from the
-grid's bounds at its period, within what the numbering allows, and counted as a suspected miss;
-the next pinned sample counts from the last exact one again, so a misjudged gap does not carry
-over.
+grid's bounds at its period, within what the numbering allows, counted as a suspected miss and
+published as an estimate (the batch's FLAG_GAP_UNCERTAIN); the next pinned sample counts from
+the last exact one again, so a misjudged gap does not carry over.
 """
 
 from __future__ import annotations
@@ -77,4 +77,6 @@ class SampleCount:
         step, self.ticks = ticks - last, ticks
         if step != 1:
             timing.broke()
-        return timing.read(tb, ta, counter=ChipCounter(np.array([ticks], np.int64), COUNTER_MODULO))
+        return timing.read(
+            tb, ta, counter=ChipCounter(np.array([ticks], np.int64), COUNTER_MODULO, 1, not exact)
+        )

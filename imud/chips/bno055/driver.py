@@ -440,8 +440,10 @@ class Bno055Driver:
         self._held = None
         if held is None:
             return self._deliver(sample, g.seen)
-        # the held sample is older than this one: its index below this one's lowest
-        first = self._deliver(held, (held.seen[0], min(held.seen[1], g.seen[0] - 1)))
+        # the held sample is older than this one, so its index is below this one's. Not below
+        # this one's lowest: when this read straddled a window too, the held one may be that
+        # lowest (a read after it, the next lower): exact only if the ranges do not overlap
+        first = self._deliver(held, (held.seen[0], min(held.seen[1], g.seen[1] - 1)))
         first.then = self._deliver(sample, g.seen)
         return first
 
