@@ -39,9 +39,10 @@ SLEW = 0.005
 # once a segment has this many reads, its feasible set is solved at most every SOLVE_EVERY_NS of
 # host time; the reads between only add their bounds, and stamps follow the last solution's line.
 # A chip without a FIFO is read once a sample (2000 solves/s at 2 kHz, measured 83 us each, a
-# sixth of a core): the line moves by ppm between solves, far below a read's bracket
+# sixth of a core), a FIFO chip every few ms: the line moves by ppm between solves, far below a
+# read's bracket (bench/timestamp_error.py --virtual: the same errors at 10 and at 100 ms)
 SOLVE_SETTLED_READS = 200
-SOLVE_EVERY_NS = 10_000_000
+SOLVE_EVERY_NS = 100_000_000
 KNOWN_TPS_N = 1 << 62  # the steps behind a counter's ticks a sample that the driver gave
 
 
