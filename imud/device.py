@@ -348,9 +348,14 @@ class DeviceRunner:
         return self.driver.poll_interval_ns + int(self._phase * self.driver.nominal_period_ns)
 
     def _publish_truth(self) -> None:
-        if self.sim is None or self.publish_truth is None:
-            return
-        t = counted(self.sim.drain_truth)()  # the truth is the simulator's work
+        """The simulator's true samples since the last read. All of it counts as the
+        simulator's CPU, its encoding and sending too: silicon has no truth to send."""
+        if self.sim is not None and self.publish_truth is not None:
+            counted(self._send_truth)()
+
+    def _send_truth(self) -> None:
+        assert self.sim is not None and self.publish_truth is not None
+        t = self.sim.drain_truth()
         if t is not None:
             self.publish_truth(
                 encode(
