@@ -36,6 +36,7 @@ _BIT = {c: np.uint32(c) for c in Channel}
 _SAT = {c: np.uint32(f) for c, f in SATURATED.items()}
 _TEMPERATURE = int(Channel.TEMPERATURE)
 _max, _min = np.maximum.reduce, np.minimum.reduce  # skip ndarray.max's Python wrapper
+SMALL_N = 4  # batches this short are checked for saturation in plain Python
 
 
 def stamp(clock: SampleClock, t: FifoRead, n: int) -> Stamped:
@@ -70,7 +71,12 @@ def sample_flags(raw: RawBatch) -> U32 | None:
         fs = rc.full_scale
         if fs is not None and n and ch in _SAT:
             d = rc.data
-            if _max(d, None) >= fs or _min(d, None) <= -fs:  # rare: only then per sample
+            if n <= SMALL_N:  # a sample or two (a chip read once a sample): plain Python is
+                values = d.ravel().tolist()  # several times cheaper than two NumPy reductions
+                hit_any = max(values) >= fs or min(values) <= -fs
+            else:
+                hit_any = _max(d, None) >= fs or _min(d, None) <= -fs
+            if hit_any:  # rare: only then per sample
                 hit = (np.abs(d) >= fs).reshape(n, -1).any(axis=1)
                 flags = np.zeros(n, dtype=np.uint32) if flags is None else flags
                 flags[hit] |= _SAT[ch]
