@@ -5,11 +5,41 @@ daemon's, on any machine."""
 
 from __future__ import annotations
 
+import os
+import shutil
 import tempfile
 from pathlib import Path
 from typing import Any
 
 from imud.config import ImudConfig, parse_config
+
+PREFIX = "imud-config-"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's
+        return True
+    return True
+
+
+def sweep_stale(tmp: Path) -> list[Path]:
+    """Remove the copies of processes that died without `close()` (killed): this user's
+    `imud-config-<pid>-*` directories whose process is gone. Returns what it removed."""
+    gone = []
+    for d in tmp.glob(f"{PREFIX}*-*"):
+        pid = d.name[len(PREFIX) :].split("-", 1)[0]
+        try:
+            if not pid.isdigit() or d.stat().st_uid != os.getuid() or _alive(int(pid)):
+                continue
+        except OSError:
+            continue
+        shutil.rmtree(d, ignore_errors=True)
+        gone.append(d)
+    return gone
 
 
 class DaemonConfig:
@@ -18,7 +48,10 @@ class DaemonConfig:
     `error` saying why it does not load here. Call `close()` to remove the copies."""
 
     def __init__(self, raw: dict[str, Any], calibration: dict[str, str]) -> None:
-        self._tmp = tempfile.TemporaryDirectory(prefix="imud-config-")
+        # named by this process, so a later one can tell a killed process's copies from a live
+        # one's and remove them (a recorder stopped with SIGKILL cannot)
+        sweep_stale(Path(tempfile.gettempdir()))
+        self._tmp = tempfile.TemporaryDirectory(prefix=f"{PREFIX}{os.getpid()}-")
         raw = dict(raw)
         devices = []
         for d in raw.get("device", []):
