@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import ctypes
-import socket
 import sys
 import threading
 import time
@@ -38,13 +37,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bus_stages import paced_worker
+
 import imud.sim.cpu as simcpu
 import imud.sim.spiframe
 import imud.wiring
-from imud.buschild import _outlet
 from imud.buses.models import SimBus
-from imud.busworker import build_worker
-from imud.clock import MonotonicClock
 from imud.config import load_config
 
 WINDOW = 64  # how far ahead of its place a replayed transfer's match is looked for
@@ -184,23 +182,11 @@ def run(config: Path, bus: str, seconds: float, tapes: dict[str, Tape], replay: 
     if not devices:
         raise SystemExit(f"no device on bus {bus!r}")
     install(tapes, replay)
-    ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
-
-    def drain() -> None:
-        while theirs.recv(1 << 20):
-            pass
-
-    threading.Thread(target=drain, daemon=True).start()
-    stop = threading.Event()
-    w = build_worker(
-        bus, devices, MonotonicClock(), 0, _outlet(ours, stop), cfg.daemon.realtime_priority
-    )
-    w.stop = stop
+    w, stop = paced_worker(bus, devices, cfg.daemon.realtime_priority)
     threading.Timer(seconds, stop.set).start()
     t0, s0 = time.thread_time_ns(), simcpu.total_ns()
     w.run()
     cpu, sim = time.thread_time_ns() - t0, simcpu.total_ns() - s0
-    ours.close()
     n = max(1, sum(r.samples for r in w.runners))
     lost = sum(r.lost_samples for r in w.runners)
     what = "the tape" if replay else "simulators"

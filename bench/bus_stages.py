@@ -29,6 +29,7 @@ import imud.sim.cpu as simcpu
 from imud import device, emit, pipeline, timestamps
 from imud.buschild import _outlet
 from imud.busworker import BusWorker, build_worker
+from imud.chips.api import DeviceBase
 from imud.clock import MonotonicClock
 from imud.config import load_config
 
@@ -51,6 +52,25 @@ def _own(totals: Totals, label: str, fn: Callable[..., Any]) -> Callable[..., An
     return wrapper
 
 
+def paced_worker(
+    key: str, devices: list[DeviceBase], realtime_priority: int | None
+) -> tuple[BusWorker, threading.Event]:
+    """The worker of bus `key` as a bus process builds it, on the monotonic clock, its batches
+    sent on a socket whose other end a thread drains; run it with `worker.run()` until the
+    event is set."""
+    ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+
+    def drain() -> None:
+        while theirs.recv(1 << 20):
+            pass
+
+    threading.Thread(target=drain, daemon=True).start()
+    stop = threading.Event()
+    worker = build_worker(key, devices, MonotonicClock(), 0, _outlet(ours, stop), realtime_priority)
+    worker.stop = stop
+    return worker, stop
+
+
 def _wrap_method(totals: Totals, cls: type, name: str, label: str) -> None:
     setattr(cls, name, _own(totals, label, getattr(cls, name)))
 
@@ -67,23 +87,7 @@ def main() -> int:
         keys = sorted({d.bus.key for d in cfg.device})
         print(f"no device on bus {args.bus!r}; the config's buses: {', '.join(keys)}")
         return 2
-    ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
-
-    def drain() -> None:
-        while theirs.recv(1 << 20):
-            pass
-
-    threading.Thread(target=drain, daemon=True).start()
-    stop = threading.Event()
-    worker = build_worker(
-        args.bus,
-        devices,
-        MonotonicClock(),
-        0,
-        _outlet(ours, stop),
-        cfg.daemon.realtime_priority,
-    )
-    worker.stop = stop
+    worker, stop = paced_worker(args.bus, devices, cfg.daemon.realtime_priority)
     totals: Totals = {}
     _wrap_method(totals, BusWorker, "run_once", "worker: one scheduling decision")
     _wrap_method(totals, device.DeviceRunner, "step", "runner: one step")
