@@ -71,7 +71,7 @@ def sample_flags(raw: RawBatch) -> U32 | None:
         fs = rc.full_scale
         if fs is not None and n and ch in _SAT:
             d = rc.data
-            if n <= SMALL_N:  # a sample or two (a chip read once a sample): plain Python is
+            if n <= SMALL_N:  # a few samples (a chip read once a sample): plain Python is
                 values = d.ravel().tolist()  # several times cheaper than two NumPy reductions
                 hit_any = max(values) >= fs or min(values) <= -fs
             else:

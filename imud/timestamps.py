@@ -43,7 +43,6 @@ SLEW = 0.005
 # read's bracket (bench/timestamp_error.py --virtual: the same errors at 10 and at 100 ms)
 SOLVE_SETTLED_READS = 200
 SOLVE_EVERY_NS = 100_000_000
-KNOWN_TPS_N = 1 << 62  # the steps behind a counter's ticks a sample that the driver gave
 
 
 class _Ring:
@@ -140,6 +139,7 @@ class SampleClock:
         self._tick_u = 0
         self._tick_n = 0
         self._tps_n = 0  # the steps the current estimate came from
+        self._tps_known = False  # the driver gave the ratio (ChipCounter.per_sample)
         self._rebase = False
         self._count = 0
         self._seg_n = 0
@@ -475,8 +475,8 @@ class SampleClock:
         samples = self._tick_n
         # the estimate follows the baseline as it grows; a new baseline replaces an older
         # estimate once it is as long, or long enough to be good (the ratio is fixed by the
-        # chip's clock tree: it changes only with its clock source); a known ratio stays
-        if self._tps_n == KNOWN_TPS_N:
+        # chip's clock tree: it changes only with its clock source); one the driver gave stays
+        if self._tps_known:
             return
         if samples >= 1 and (self._tps is None or samples >= min(256, self._tps_n)):
             tps = self._tick_u / samples
@@ -523,9 +523,12 @@ class SampleClock:
         return first + n - 1, advance
 
     def _sample_counter(self) -> bool:
-        """The chip's counter steps a whole number of ticks a sample (learnt over 16 samples or
-        more: no tick ratio is that close to an integer by chance): it counts samples."""
-        return self._tps is not None and self._tps.is_integer() and self._tps_n >= 16
+        """The chip's counter steps a whole number of ticks a sample (the driver says so, or
+        learnt over 16 samples or more: no tick ratio is that close to an integer by chance): it
+        counts samples."""
+        if self._tps is None or not self._tps.is_integer():
+            return False
+        return self._tps_known or self._tps_n >= 16
 
     def _tick_index_below(
         self, n: int, t_after: int, ticks: npt.NDArray[np.int64], mod: int
@@ -728,7 +731,7 @@ class SampleClock:
         segment = resync  # the bounds before a gap hold for the line after it only if the gap
         if ticks is not None and ticks_modulo:  # was counted exactly
             if ticks_per_sample:
-                self._tps, self._tps_n = float(ticks_per_sample), KNOWN_TPS_N
+                self._tps, self._tps_known = float(ticks_per_sample), True
             k_new, advance, silent = self._counted(k_new, n, t_before, t_after, resync, full,
                                                    restart, ticks, ticks_modulo)  # fmt: skip
             self._learn_ticks(k_new - n + 1, n, ticks, ticks_modulo, advance)
