@@ -21,13 +21,13 @@ LATE_SLACK_NS = 8_000_000
 POLL_MAX_NS = 50_000_000  # a sample waits at most this long in a slow chip's FIFO
 
 
-def fifo_poll_interval_ns(capacity: int, period_ns: float) -> int:
+def fifo_poll_interval_ns(capacity: int, period_ns: float, halves: bool = True) -> int:
     """How long between reads of a FIFO of `capacity` samples at `period_ns`: half its span
-    when the other half still leaves LATE_SLACK_NS for a late wake-up, else a quarter (a FIFO
-    that lasts a few ms). The cost of a read is mostly per read, not per sample, so
-    fuller reads are cheaper per sample; the clock fit needs no more reads than this."""
+    when the other half still leaves LATE_SLACK_NS for a late wake-up, else (or with `halves`
+    False) a quarter. The cost of a read is mostly per read, not per sample, so fuller reads
+    are cheaper per sample; the clock fit needs no more reads than this. At most POLL_MAX_NS."""
     span = capacity * period_ns
-    interval = span / 2 if span / 2 >= LATE_SLACK_NS else span / 4
+    interval = span / 2 if halves and span / 2 >= LATE_SLACK_NS else span / 4
     return int(min(POLL_MAX_NS, interval))
 
 

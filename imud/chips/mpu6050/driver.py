@@ -17,7 +17,7 @@ from imud.buses.registers import RegisterDevice
 from imud.channels import Channel
 from imud.chips.api import DriverCounters, RawBatch, RawChannel
 from imud.chips.bits import BitField
-from imud.chips.fifotiming import FifoTiming
+from imud.chips.fifotiming import FifoTiming, fifo_poll_interval_ns
 from imud.chips.mpu6050 import registers as R
 from imud.chips.mpu6050.config import Mpu6050Config
 from imud.chips.regplan import RegisterChecker, RegisterPlan, RegisterSetting
@@ -122,8 +122,12 @@ class Mpu6050Driver:
         self.counters = DriverCounters()
         self.nominal_period_ns = 1e9 / cfg.odr_hz
         self.group_delay_ns = round(group_delay_s(cfg.dlpf_hz) * 1e9)
-        # a quarter of the FIFO between polls keeps it under half full with +-5 % clock error
-        self.poll_interval_ns = int(min(50e6, self.nominal_period_ns * self.fifo_capacity / 4))
+        # a quarter of the FIFO between polls: at a half, the first batch after a start (read
+        # before any batch measured the chip's period) is stamped at the nominal one, up to
+        # half a period off at its oldest (docs/performance.md section 19)
+        self.poll_interval_ns = fifo_poll_interval_ns(
+            self.fifo_capacity, self.nominal_period_ns, halves=False
+        )
         self.next_poll_ns: int | None = None  # a FIFO: polled at its interval
         self.accel_scale = accel_scale_ms2(cfg.accel_range_g)
         self.gyro_scale = gyro_scale_rads(cfg.gyro_range_dps)
