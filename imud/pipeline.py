@@ -24,6 +24,7 @@ from imud.calib.model import CalibrationModel, apply, fill_temperature
 from imud.calib.track import GyroBiasTracker
 from imud.channels import INVALID_MASK, SATURATED, Channel, SampleFlag
 from imud.chips.api import DeviceBase, Driver, FifoRead, RawBatch, Stamped
+from imud.compiled import load
 from imud.orient.stage import OrientationStage, noise_model
 from imud.timestamps import SampleClock
 from imud.wire import FLAG_CALIBRATED, FLAG_GAP_UNCERTAIN, FLAG_RESYNC
@@ -37,6 +38,8 @@ _SAT = {c: np.uint32(f) for c, f in SATURATED.items()}
 _TEMPERATURE = int(Channel.TEMPERATURE)
 _max, _min = np.maximum.reduce, np.minimum.reduce  # skip ndarray.max's Python wrapper
 SMALL_N = 4  # batches this short are checked for saturation in plain Python
+_kernels = load("imud._kernels")  # `reaches` in one pass, when built
+_I32 = np.dtype(np.int32)
 
 
 def stamp(clock: SampleClock, t: FifoRead, n: int) -> Stamped:
@@ -59,6 +62,17 @@ def stamp(clock: SampleClock, t: FifoRead, n: int) -> Stamped:
     return st
 
 
+def reaches(data: npt.NDArray[np.generic], full_scale: float) -> bool:
+    """Whether any count is at or beyond +-full_scale: in one pass of the compiled kernel when
+    it was built and the counts are contiguous int32s, else two NumPy reductions."""
+    if _kernels is not None and data.dtype == _I32:
+        try:
+            return bool(_kernels.reaches(data, full_scale))
+        except (BufferError, ValueError):  # not contiguous (NumPy says ValueError)
+            pass
+    return bool(_max(data, None) >= full_scale or _min(data, None) <= -full_scale)
+
+
 def sample_flags(raw: RawBatch) -> U32 | None:
     """Per-sample flags: each channel the chip marked invalid, each sensor at full scale, and
     the chip's alarm. None when no sample has any (the usual case: nothing to allocate)."""
@@ -75,7 +89,7 @@ def sample_flags(raw: RawBatch) -> U32 | None:
                 values = d.ravel().tolist()  # several times cheaper than two NumPy reductions
                 hit_any = max(values) >= fs or min(values) <= -fs
             else:
-                hit_any = _max(d, None) >= fs or _min(d, None) <= -fs
+                hit_any = reaches(d, fs)
             if hit_any:  # rare: only then per sample
                 hit = (np.abs(d) >= fs).reshape(n, -1).any(axis=1)
                 flags = np.zeros(n, dtype=np.uint32) if flags is None else flags
@@ -91,7 +105,7 @@ def to_si(raw: RawBatch) -> dict[Channel, F64]:
     out: dict[Channel, F64] = {}
     for ch, rc in raw.channels.items():
         if rc.scale != 1.0:
-            si = rc.data.astype(np.float64) * rc.scale
+            si = np.multiply(rc.data, rc.scale, dtype=np.float64)  # (one call: no astype)
         elif rc.invalid is not None:
             si = rc.data.astype(np.float64)  # a copy: NaN goes in below
         else:

@@ -25,6 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from imud.chips.api import Stamped
+from imud.compiled import load
 
 _min, _max = np.minimum.reduce, np.maximum.reduce  # without ndarray.min's Python wrapper
 # the reads' bounds are kept for HULL_SPAN_NS of host time (the fit uses the last half to all of
@@ -43,6 +44,66 @@ SLEW = 0.005
 # read's bracket (bench/timestamp_error.py --virtual: the same errors at 10 and at 100 ms)
 SOLVE_SETTLED_READS = 200
 SOLVE_EVERY_NS = 100_000_000
+_kernels = load("imud._kernels")  # one call for line_stamps and the ticks' steps, when built
+I64 = npt.NDArray[np.int64]
+
+
+def line_stamps_numpy(
+    n: int,
+    s: float,
+    b: float,
+    k0: int,
+    period: float,
+    corr: float,
+    last_ts: int | None,
+    follow: bool,
+    slew_room: float,
+) -> I64:
+    """The stamps of samples k0 .. k0 + n - 1 on the line t(k) = s + period (k - b), moved by
+    `corr`; when `follow`, steered from `last_ts` (sample k0 - 1's stamp) by at most
+    `slew_room` ns a sample; rounded half to even; strictly after `last_ts` when there is one.
+    The compiled kernel's twin and reference."""
+    ks = np.arange(k0, k0 + n, dtype=np.float64)
+    est = s + period * (ks - b) + corr
+    if follow and last_ts is not None:
+        steps = np.arange(1, n + 1, dtype=np.float64)
+        cont = last_ts + steps * period
+        room = steps * slew_room
+        est = cont + np.clip(est - cont, -room, room)
+    t = np.rint(est).astype(np.int64)
+    # strictly increasing across batches, whatever the fit did (within a batch the line rises a
+    # period a sample, so only a first stamp not after the last can break it)
+    if last_ts is not None and t[0] <= last_ts:
+        t = np.maximum(t, last_ts + 1 + np.arange(n, dtype=np.int64))
+    return t
+
+
+def line_stamps(
+    n: int,
+    s: float,
+    b: float,
+    k0: int,
+    period: float,
+    corr: float,
+    last_ts: int | None,
+    follow: bool,
+    slew_room: float,
+) -> I64:
+    """`line_stamps_numpy`, in one call of the compiled kernel when it was built."""
+    if _kernels is None:
+        return line_stamps_numpy(n, s, b, k0, period, corr, last_ts, follow, slew_room)
+    t = np.empty(n, dtype=np.int64)
+    _kernels.stamps(t, s, b, k0, period, corr, last_ts, follow and last_ts is not None, slew_room)
+    return t
+
+
+def tick_steps(ticks: I64, mod: int) -> tuple[int, int]:
+    """(largest, sum) of a counter's steps between consecutive samples, each modulo its wrap."""
+    if _kernels is not None and ticks.dtype == np.int64:  # (the kernel reads int64s)
+        largest, total = _kernels.tick_steps(ticks, mod)
+        return largest, total
+    steps = np.diff(ticks) % mod
+    return (int(steps.max()), int(steps.sum())) if steps.size else (0, 0)
 
 
 class _Ring:
@@ -455,11 +516,10 @@ class SampleClock:
         from this estimate, and fed back it would hold on to its own error (a gap of 1800
         samples counted one short, measured, kept the next ones short too)."""
         if n >= 2:
-            steps = np.diff(ticks) % mod
-            if int(steps.max()) >= mod // 2:  # a sample apart is half a wrap: ticks say nothing
+            largest, span = tick_steps(ticks, mod)
+            if largest >= mod // 2:  # a sample apart is half a wrap: ticks say nothing
                 self._tps = self._last_tick = None
                 return
-            span = int(steps.sum())
         else:
             span = 0
         if advance is None or self._last_tick is None:
@@ -764,22 +824,22 @@ class SampleClock:
             self._observe(k_new, t_before, t_after, new_segment=segment, phase=not full)
         if n == 1:  # a chip without a FIFO, once a sample: the same in scalars (NumPy's
             return self._stamp_one(first, lost, uncertain)  # per-call cost is most of it at n = 1)
-        ks = np.arange(first, k_new + 1, dtype=np.float64)
-        est = self._line(ks) + self._correction()
-        if self.last_ts is not None and first == self._ts_k + 1:
-            # the stream goes on (no sample missing, whatever the FIFO went through): steer
-            # from the last stamp towards the new estimate by at most SLEW of a period a
-            # sample, so consecutive stamps stay within SLEW of the period while the fit
-            # refines (a read's news would otherwise show as a step)
-            steps = np.arange(1, n + 1, dtype=np.float64)
-            cont = self.last_ts + steps * self.period
-            room = steps * (SLEW * self.period)
-            est = cont + np.clip(est - cont, -room, room)
-        t = np.rint(est).astype(np.int64)
-        # strictly increasing across batches, whatever the fit did (within a batch the line
-        # rises a period a sample, so only a first stamp not after the last can break it)
-        if self.last_ts is not None and t[0] <= self.last_ts:
-            t = np.maximum(t, self.last_ts + 1 + np.arange(n, dtype=np.int64))
+        # the stream goes on (no sample missing, whatever the FIFO went through): steer from
+        # the last stamp towards the new estimate by at most SLEW of a period a sample, so
+        # consecutive stamps stay within SLEW of the period while the fit refines (a read's news
+        # would otherwise show as a step)
+        follow = self.last_ts is not None and first == self._ts_k + 1
+        t = line_stamps(
+            n,
+            self._t_ref + self._my,
+            self._k_ref + self._mk,
+            first,
+            self.period,
+            self._correction(),
+            self.last_ts,
+            follow,
+            SLEW * self.period,
+        )
         self.last_ts = int(t[-1])
         self.k_last = self._ts_k = k_new
         return Stamped(first, lost, t, self.period, uncertain)

@@ -28,6 +28,7 @@ from imud.chips.icm42688p import registers as R
 from imud.chips.icm42688p.config import Icm42688pConfig
 from imud.chips.regplan import RegisterChecker, RegisterPlan, RegisterSetting
 from imud.clock import Clock
+from imud.compiled import load
 from imud.errors import BusError, DeviceIdentityError
 from imud.units import STANDARD_GRAVITY
 
@@ -38,6 +39,7 @@ _HDR_GYRO = int(R.Header.GYRO)
 _HDR_20 = int(R.Header.HIRES_20)
 _FIFO_FULL = int(R.IntStatus.FIFO_FULL_INT)
 _and, _min = np.bitwise_and.reduce, np.minimum.reduce
+_fifo = load("imud.chips.icm42688p._fifo")  # decode_fifo's one-call kernel, when built
 
 
 def gyro_scale_rads(range_dps: float, hires: bool) -> float:
@@ -135,6 +137,27 @@ def decode_packets(data: bytes, hires: bool) -> Packets:
     accel_bad = ((hdr & _HDR_ACCEL) == 0) | (accel == marker).all(axis=1) | no_20
     gyro_bad = ((hdr & _HDR_GYRO) == 0) | (gyro == marker).all(axis=1) | no_20
     return Packets(accel, gyro, temp, ts, accel_bad, gyro_bad, temp_bad)
+
+
+def decode_fifo(data: bytes, hires: bool, ticks_per_sample: float) -> tuple[Packets, list[int]]:
+    """`decode_packets` and the `timestamp_breaks` of what it decoded: in one call of the
+    compiled kernel when it was built (the same results), else those two."""
+    if _fifo is None:
+        p = decode_packets(data, hires)
+        return p, timestamp_breaks(p.timestamp, ticks_per_sample)
+    cap = len(data) // (R.PACKET4_BYTES if hires else R.PACKET3_BYTES)
+    accel = np.empty((cap, 3), dtype=np.int32)
+    gyro = np.empty((cap, 3), dtype=np.int32)
+    temp = np.empty(cap, dtype=np.float64)
+    ts = np.empty(cap, dtype=np.int64)
+    bad = np.empty((3, cap), dtype=bool)
+    # timestamp_breaks' rule: more than 1.5 samples' ticks, unless a sample is most of a wrap
+    over = 1.5 * ticks_per_sample if 2.5 * ticks_per_sample < R.TIMESTAMP_MODULO else 0.0
+    n, clean, breaks = _fifo.decode(data, hires, over, accel, gyro, temp, ts, bad)
+    if n < cap:  # a 'FIFO empty' header: what came before it
+        accel, gyro, temp, ts, bad = accel[:n], gyro[:n], temp[:n], ts[:n], bad[:, :n]
+    # (clean: the masks are all False)
+    return Packets(accel, gyro, temp, ts, bad[0], bad[1], bad[2], clean=clean), breaks
 
 
 BANK_TRIES = 3  # writes of REG_BANK_SEL, each read back, before a bank select fails
@@ -364,7 +387,7 @@ class Icm42688pDriver:
         r0 = self.clock.now_ns()
         data = self.dev.read(R.Bank0.FIFO_DATA, n * self.packet)
         r1 = self.clock.now_ns()
-        p = decode_packets(data, self.cfg.hires)
+        p, breaks = decode_fifo(data, self.cfg.hires, self.ticks_per_sample)
         if not p.clean:
             self.invalid_packets += int((p.accel_invalid & p.gyro_invalid).sum())
         if p.n:
@@ -386,7 +409,6 @@ class Icm42688pDriver:
             batch = self._batch(p, t_before, t_after, full=True)
             self._flush()
             return batch
-        breaks = timestamp_breaks(p.timestamp, self.ticks_per_sample)
         if breaks:
             batch = self._broken(p, breaks, t_before, t_after, full)
         else:

@@ -1,0 +1,51 @@
+"""The compiled kernels: C versions of a few hot per-read steps, built at install time when a C
+compiler is there (pyproject.toml's ext-modules, each optional).
+
+Each kernel has a NumPy twin beside its caller, which is the reference (the results are the
+same to the bit: tests/test_compiled.py) and what runs when the kernel was not built, or with
+IMUD_PURE_PYTHON=1 in the environment (to compare, or to rule the kernels out). A process logs
+a warning for each kernel it asks for and does not find: it works, at a higher CPU cost a sample.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import os
+from types import ModuleType
+
+log = logging.getLogger("imud")
+PURE_ENV = "IMUD_PURE_PYTHON"
+_tried: dict[str, bool] = {}  # module -> whether it loaded
+
+
+def pure() -> bool:
+    """Whether the NumPy twins are asked for in place of every kernel."""
+    return os.environ.get(PURE_ENV, "") not in ("", "0")
+
+
+def load(name: str) -> ModuleType | None:
+    """The compiled module `name`, or None (not built here, or the NumPy twins asked for)."""
+    if pure():
+        _tried[name] = False
+        return None
+    try:
+        module = importlib.import_module(name)
+    except ImportError as e:
+        _tried[name] = False
+        log.warning(
+            "compiled kernel %s not built (%s): its NumPy twin runs instead, at a higher CPU "
+            "cost a sample. Install a C compiler and Python's headers (Debian: build-essential "
+            "python3-dev) and reinstall imud (docs/performance.md)",
+            name,
+            e,
+        )
+        return None
+    _tried[name] = True
+    return module
+
+
+def missing() -> list[str]:
+    """The kernels asked for in this process that did not load, with the NumPy twins not asked
+    for (those are not missing, only unused)."""
+    return [] if pure() else sorted(n for n, ok in _tried.items() if not ok)

@@ -1,0 +1,298 @@
+"""The compiled kernels (imud/_kernels.c, imud/chips/*/_*.c) against their NumPy twins.
+
+The twins are the reference: each is checked against datasheet byte vectors and physics in its
+own tests (tests/test_icm42688p_decode.py, tests/test_timestamps.py, tests/test_pipeline_flags.py).
+Here every kernel must give the same results to the bit on the same inputs: hand-written edge
+cases, random inputs, and a whole simulated chip run both ways through the daemon's runner.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import subprocess
+import sys
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from imud import compiled, pipeline, timestamps
+from imud.chips.icm42688p import driver as icm
+from imud.chips.icm42688p import registers as icm_r
+from tests.helpers import make_rig
+
+KERNELS = ["imud._kernels", "imud.chips.icm42688p._fifo"]
+FUZZ = settings(max_examples=300, deadline=None)
+
+
+def _kernel(name: str) -> Any:
+    if compiled.pure():
+        pytest.skip("IMUD_PURE_PYTHON is set: the NumPy twins run")
+    return importlib.import_module(name)
+
+
+@pytest.mark.parametrize("name", KERNELS)
+def test_every_kernel_is_built(name: str) -> None:
+    if compiled.pure():
+        pytest.skip("IMUD_PURE_PYTHON is set: the NumPy twins run")
+    try:
+        importlib.import_module(name)
+    except ImportError as e:
+        pytest.fail(
+            f"{name} was not built ({e}): install a C compiler and Python's headers "
+            "(Debian: build-essential python3-dev), then `pip install -e .` again"
+        )
+
+
+def test_a_missing_kernel_falls_back_and_is_reported() -> None:
+    """A kernel that is not there: load gives None (the caller runs the twin), and missing()
+    names it; IMUD_PURE_PYTHON=1 asks for the twins everywhere, and nothing is then missing."""
+    code = (
+        "from imud import compiled\n"
+        "assert compiled.load('imud._no_such_kernel') is None\n"
+        "print(compiled.missing())\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != compiled.PURE_ENV}
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env
+    )
+    assert out.stdout.strip() == "['imud._no_such_kernel']"
+    assert "imud._no_such_kernel not built" in out.stderr  # the process says so, and the fix
+    assert "build-essential" in out.stderr
+    code = (
+        "from imud import compiled, timestamps\n"
+        "assert compiled.load('imud._kernels') is None and timestamps._kernels is None\n"
+        "print(compiled.missing())\n"
+    )
+    env = {**env, compiled.PURE_ENV: "1"}
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env
+    )
+    assert out.stdout.strip() == "[]"
+
+
+# --- ICM-42688-P FIFO decode ---------------------------------------------------------------------
+
+
+def test_icm_kernel_constants_are_the_register_maps() -> None:
+    k = _kernel("imud.chips.icm42688p._fifo")
+    assert k.HDR_EMPTY == icm_r.Header.MSG
+    assert k.HDR_ACCEL == icm_r.Header.ACCEL
+    assert k.HDR_GYRO == icm_r.Header.GYRO
+    assert k.HDR_20 == icm_r.Header.HIRES_20
+    assert k.INVALID_16 == icm_r.INVALID_16
+    assert k.INVALID_20 == icm_r.INVALID_20
+    assert k.INVALID_TEMP_8 == icm_r.INVALID_TEMP_8
+    assert k.TIMESTAMP_MODULO == icm_r.TIMESTAMP_MODULO
+
+
+def _same_packets(data: bytes, hires: bool, per_sample: float) -> None:
+    _kernel("imud.chips.icm42688p._fifo")
+    p, breaks = icm.decode_fifo(data, hires, per_sample)
+    q = icm.decode_packets(data, hires)
+    assert breaks == icm.timestamp_breaks(q.timestamp, per_sample)
+    assert p.n == q.n and bool(p.clean) == bool(q.clean)
+    for name in ("accel", "gyro", "temperature_c", "timestamp"):
+        a, b = getattr(p, name), getattr(q, name)
+        assert a.dtype == b.dtype and a.shape == b.shape, name
+        assert a.tobytes() == b.tobytes(), name  # to the bit (NaN-free: temperatures are finite)
+    for name in ("accel_invalid", "gyro_invalid", "temperature_invalid"):
+        assert getattr(p, name).tolist() == getattr(q, name).tolist(), name
+
+
+# headers a FIFO can send, and some it should not: valid packets, a sensor missing, no 20-bit
+# data, 'FIFO empty' alone and with other bits
+HEADERS = [0x68, 0x78, 0x60, 0x70, 0x48, 0x28, 0x08, 0x00, 0x80, 0xE8, 0xFF, 0x10]
+# values near the invalid markers and the ends of the range, and anything
+VALUES = st.one_of(st.sampled_from([-32768, -32767, -1, 0, 1, 32767]), st.integers(-32768, 32767))
+
+
+@st.composite
+def fifo_bytes(draw: st.DrawFn, hires: bool) -> bytes:
+    n = draw(st.integers(0, 40))
+    rec = np.zeros(n, dtype=icm.PACKET4 if hires else icm.PACKET3)
+    rec["hdr"] = draw(st.lists(st.sampled_from(HEADERS), min_size=n, max_size=n))
+    for field in ("accel", "gyro"):
+        if draw(st.booleans()):  # whole sensors at the marker, often
+            rec[field] = draw(st.sampled_from([-32768, 0, 5]))
+        else:
+            rec[field] = np.array(
+                draw(st.lists(VALUES, min_size=3 * n, max_size=3 * n)), dtype=np.int64
+            ).reshape(n, 3)
+    lo, hi = (-32768, 32767) if hires else (-128, 127)
+    rec["temp"] = draw(st.lists(st.sampled_from([lo, lo + 1, 0, hi]), min_size=n, max_size=n))
+    # timestamps a sample apart (ticks_per_sample below), sometimes jumping or wrapping
+    start = draw(st.integers(0, 0xFFFF))
+    steps = draw(st.lists(st.sampled_from([1, 1, 1, 2, 7, 40_000]), min_size=n, max_size=n))
+    rec["ts"] = (start + np.cumsum(steps)) % 0x10000
+    if hires:
+        rec["ext"] = np.array(
+            draw(st.lists(st.integers(0, 255), min_size=3 * n, max_size=3 * n)), dtype=np.uint8
+        ).reshape(n, 3)
+    tail = draw(st.binary(max_size=(20 if hires else 16) - 1))
+    return rec.tobytes() + tail
+
+
+@FUZZ
+@given(st.booleans(), st.data(), st.sampled_from([1.0, 1.3, 8.0, 30_000.0]))
+def test_icm_decode_matches_numpy_on_packets(hires: bool, data: Any, per_sample: float) -> None:
+    _same_packets(data.draw(fifo_bytes(hires)), hires, per_sample)
+
+
+@FUZZ
+@given(st.binary(max_size=2100), st.booleans(), st.floats(0.01, 1e5))
+def test_icm_decode_matches_numpy_on_any_bytes(data: bytes, hires: bool, per_sample: float) -> None:
+    _same_packets(data, hires, per_sample)
+
+
+def test_icm_decode_hand_vectors() -> None:
+    from tests import test_icm42688p_decode as v
+
+    for data, hires in [
+        (v.P3_A, False),
+        (v.P3_B, False),
+        (v.P3_A + v.P3_B + v.FIFO_EMPTY + v.P3_A, False),
+        (v.P3_A + v.ACCEL_INVALID + v.GYRO_INVALID, False),
+        (v.P4_A + v.P4_B, True),
+        (v.P4_A + v.P4_B + v.P4_A[:19], True),
+        (b"", False),
+        (b"", True),
+    ]:
+        _same_packets(data, hires, 8.0)
+
+
+def test_icm_decode_refuses_outputs_too_small() -> None:
+    k = _kernel("imud.chips.icm42688p._fifo")
+    data = bytes(16 * 4)
+    small = np.empty((3, 3), np.int32)
+    ok = np.empty((4, 3), np.int32)
+    with pytest.raises(ValueError, match="accel"):
+        k.decode(data, False, 0.0, small, ok, np.empty(4), np.empty(4, np.int64),
+                 np.empty((3, 4), bool))  # fmt: skip
+    ro = np.zeros((3, 4), bool)
+    ro.setflags(write=False)
+    with pytest.raises((BufferError, ValueError)):  # a read-only output
+        k.decode(data, False, 0.0, ok, ok.copy(), np.empty(4), np.empty(4, np.int64), ro)
+
+
+# --- the sample clock's stamps and ticks ---------------------------------------------------------
+
+
+@FUZZ
+@given(
+    st.integers(1, 300),
+    st.floats(0, 2e15),
+    st.floats(-1e6, 1e6),
+    st.integers(-(10**6), 10**9),
+    st.floats(1e3, 1e8),
+    st.floats(-1e7, 1e7),
+    st.one_of(st.none(), st.integers(0, 2 * 10**15)),
+    st.booleans(),
+    st.floats(0, 1e6),
+)
+def test_line_stamps_match_numpy(
+    n: int,
+    s: float,
+    b: float,
+    k0: int,
+    period: float,
+    corr: float,
+    last: int | None,
+    follow: bool,
+    room: float,
+) -> None:
+    k = _kernel("imud._kernels")
+    want = timestamps.line_stamps_numpy(n, s, b, k0, period, corr, last, follow, room)
+    got = np.empty(n, dtype=np.int64)
+    k.stamps(got, s, b, k0, period, corr, last, follow and last is not None, room)
+    assert got.tolist() == want.tolist()
+
+
+def test_line_stamps_near_the_last_stamp() -> None:
+    """Where the rounding, the slew and the strictly-after rule all bite: a line a fraction of a
+    nanosecond off .5, steered from a last stamp ahead of it."""
+    k = _kernel("imud._kernels")
+    for last in (None, 1_000_000_000_000, 1_000_000_000_500, 1_000_000_010_000):
+        for s in (1_000_000_000_000.5, 1_000_000_000_001.5, 999_999_999_999.4999):
+            args = (64, s, 0.0, 1, 125_000.0, -0.5, last, last is not None, 625.0)
+            want = timestamps.line_stamps_numpy(*args)
+            got = np.empty(64, dtype=np.int64)
+            k.stamps(got, *args[1:])
+            assert got.tolist() == want.tolist(), (last, s)
+
+
+@FUZZ
+@given(st.lists(st.integers(-(2**40), 2**40), max_size=80), st.sampled_from([7, 1 << 16, 1 << 32]))
+def test_tick_steps_match_numpy(ticks: list[int], mod: int) -> None:
+    k = _kernel("imud._kernels")
+    a = np.asarray(ticks, dtype=np.int64)
+    steps = np.diff(a) % mod
+    want = (int(steps.max()), int(steps.sum())) if steps.size else (0, 0)
+    assert k.tick_steps(a, mod) == want
+
+
+def test_tick_steps_refuse_other_integers() -> None:
+    k = _kernel("imud._kernels")
+    with pytest.raises(TypeError, match="int64"):
+        k.tick_steps(np.arange(4, dtype=np.int32), 16)
+    with pytest.raises(ValueError, match="positive"):
+        k.tick_steps(np.arange(4, dtype=np.int64), 0)
+
+
+@FUZZ
+@given(
+    st.lists(st.integers(-(2**31), 2**31 - 1), min_size=1, max_size=60),
+    st.sampled_from([1.0, 32767.0, 32768.0, 524288.0, 2.0**31, 5e9]),
+)
+def test_reaches_matches_numpy(values: list[int], fs: float) -> None:
+    k = _kernel("imud._kernels")
+    a = np.asarray(values, dtype=np.int32)
+    want = bool(a.max() >= fs or a.min() <= -fs)
+    assert k.reaches(a, fs) is want
+    assert pipeline.reaches(a[::2], fs) is bool(a[::2].max() >= fs or a[::2].min() <= -fs)
+
+
+def test_reaches_refuses_other_dtypes() -> None:
+    k = _kernel("imud._kernels")
+    with pytest.raises(TypeError, match="int32"):
+        k.reaches(np.zeros(3, np.int64), 1.0)
+    # the pipeline hands those to NumPy instead
+    assert pipeline.reaches(np.array([0.0, 2.5]), 2.5) is True
+
+
+# --- a whole chip both ways ----------------------------------------------------------------------
+
+FAULTS = {"garble_rate": 2e-3, "stall_rate": 2e-3, "stall_ms": 20.0}
+
+
+def _icm_run(hires: bool) -> list[bytes]:
+    device = {
+        "chip": "icm42688p",
+        "bus": {"kind": "sim", "transport": "spi"},
+        "odr_hz": 8000,
+        "hires": hires,
+    }
+    sim = {"seed": 5, "clock_error": 0.004, "faults": FAULTS,
+           "motion": {"kind": "tumble", "rate_dps": [10.0, 20.0, 100.0]}}  # fmt: skip
+    rig = make_rig(device, sim)
+    rig.run(3.0, jitter_ns=400_000, seed=3)
+    return rig.out
+
+
+@pytest.mark.parametrize("hires", [False, True])
+def test_a_simulated_icm_publishes_the_same_bytes_both_ways(
+    hires: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The driver, the clock and the pipeline with every kernel, then with the NumPy twins: the
+    same published batches, byte for byte, through FIFO overflows and garbled bursts."""
+    _kernel("imud._kernels")
+    fast = _icm_run(hires)
+    monkeypatch.setattr(icm, "_fifo", None)
+    monkeypatch.setattr(timestamps, "_kernels", None)
+    monkeypatch.setattr(pipeline, "_kernels", None)
+    slow = _icm_run(hires)
+    assert len(fast) > 100
+    assert fast == slow
