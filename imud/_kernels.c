@@ -147,8 +147,9 @@ static PyObject *tick_steps(PyObject *self, PyObject *const *args, Py_ssize_t na
 
 /* reaches(data, full_scale) -> bool
  *
- * Whether any int32 count in `data` is at or beyond +-full_scale: a sensor at its range's end
- * (the pipeline's saturation flag, whose per-sample work runs only when this says so). */
+ * Whether any int32 count in `data` (one or two dimensions, any strides: a driver's columns of
+ * a wider record come as views) is at or beyond +-full_scale: a sensor at its range's end (the
+ * pipeline's saturation flag, whose per-sample work runs only when this says so). */
 static PyObject *reaches(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     if (nargs != 2) {
         PyErr_SetString(PyExc_TypeError, "reaches() takes 2 arguments");
@@ -158,22 +159,159 @@ static PyObject *reaches(PyObject *self, PyObject *const *args, Py_ssize_t nargs
     if (PyErr_Occurred())
         return NULL;
     Py_buffer in;
-    if (PyObject_GetBuffer(args[0], &in, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
+    if (PyObject_GetBuffer(args[0], &in, PyBUF_STRIDES | PyBUF_FORMAT) < 0)
         return NULL;
-    if (!is_native(&in, 4, "il")) {
+    if (!is_native(&in, 4, "il") || in.ndim < 1 || in.ndim > 2) {
         PyBuffer_Release(&in);
-        PyErr_SetString(PyExc_TypeError, "reaches: data must hold native int32 counts");
+        PyErr_SetString(PyExc_TypeError,
+                        "reaches: data must be native int32 counts in one or two dimensions");
         return NULL;
     }
-    Py_ssize_t n = in.len / 4;
-    const int32_t *v = (const int32_t *)in.buf;
+    const Py_ssize_t rows = in.shape[0], cols = in.ndim == 2 ? in.shape[1] : 1;
+    const Py_ssize_t rs = in.strides[0], cs = in.ndim == 2 ? in.strides[1] : 0;
+    const char *base = (const char *)in.buf;
     int32_t lo = 0, hi = 0;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        lo = v[i] < lo ? v[i] : lo;
-        hi = v[i] > hi ? v[i] : hi;
+    for (Py_ssize_t i = 0; i < rows; i++) {
+        const char *row = base + i * rs;
+        for (Py_ssize_t j = 0; j < cols; j++) {
+            int32_t v;
+            memcpy(&v, row + j * cs, sizeof v);
+            lo = v < lo ? v : lo;
+            hi = v > hi ? v : hi;
+        }
     }
     PyBuffer_Release(&in);
     return PyBool_FromLong((double)hi >= fs || (double)lo <= -fs);
+}
+
+/* bracket(a_t, seq, t, jj, w, base) -> int
+ *
+ * Where each time of t (ascending) falls among another die's sample times a_t (ascending, at
+ * least two; their seqs in seq): jj, the index of the sample at or before it, held to the
+ * pairs there are (0 .. m - 2); w, how far along that pair it lies, held to [0, 1]; base,
+ * whether the pair brackets it and is two consecutive samples. Returns jj's last value. The
+ * align stage's _Follower.at, in the same operations. */
+static PyObject *bracket(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 6) {
+        PyErr_SetString(PyExc_TypeError, "bracket() takes 6 arguments");
+        return NULL;
+    }
+    Py_buffer at, sq, tt, jb, wb, bb;
+    if (!get_buffer(args[0], &at, 16, 0, "bracket a_t"))
+        return NULL;
+    const Py_ssize_t m = at.len / 8;
+    if (!get_buffer(args[1], &sq, m * 8, 0, "bracket seq")) {
+        PyBuffer_Release(&at);
+        return NULL;
+    }
+    if (!get_buffer(args[2], &tt, 0, 0, "bracket t")) {
+        PyBuffer_Release(&sq);
+        PyBuffer_Release(&at);
+        return NULL;
+    }
+    const Py_ssize_t n = tt.len / 8;
+    int got = 0;
+    if (get_buffer(args[3], &jb, n * 8, 1, "bracket jj")) {
+        got = 1;
+        if (get_buffer(args[4], &wb, n * 8, 1, "bracket w")) {
+            got = 2;
+            if (get_buffer(args[5], &bb, n, 1, "bracket base"))
+                got = 3;
+        }
+    }
+    if (got < 3) {
+        if (got > 1) PyBuffer_Release(&wb);
+        if (got > 0) PyBuffer_Release(&jb);
+        PyBuffer_Release(&tt);
+        PyBuffer_Release(&sq);
+        PyBuffer_Release(&at);
+        return NULL;
+    }
+    const int64_t *a = (const int64_t *)at.buf, *seq = (const int64_t *)sq.buf;
+    const int64_t *t = (const int64_t *)tt.buf;
+    int64_t *jj = (int64_t *)jb.buf;
+    double *w = (double *)wb.buf;
+    uint8_t *base = (uint8_t *)bb.buf;
+    Py_ssize_t j = -1; /* the newest sample at or before t[i]: t ascends, so it only moves on */
+    for (Py_ssize_t i = 0; i < n; i++) {
+        if (i && t[i] < t[i - 1])
+            j = -1; /* (not ascending after all: search from the start, as a bisection would) */
+        while (j + 1 < m && a[j + 1] <= t[i])
+            j++;
+        const Py_ssize_t k = j < 0 ? 0 : (j > m - 2 ? m - 2 : j);
+        const int64_t t0 = a[k], t1 = a[k + 1];
+        double x = (double)(t[i] - t0) / (double)(t1 - t0);
+        x = x < 0.0 ? 0.0 : x;
+        x = x > 1.0 ? 1.0 : x;
+        jj[i] = k;
+        w[i] = x;
+        base[i] = j >= 0 && t[i] <= a[m - 1] && seq[k + 1] - seq[k] == 1;
+    }
+    const long long last = n ? (long long)jj[n - 1] : 0;
+    PyBuffer_Release(&bb);
+    PyBuffer_Release(&wb);
+    PyBuffer_Release(&jb);
+    PyBuffer_Release(&tt);
+    PyBuffer_Release(&sq);
+    PyBuffer_Release(&at);
+    return PyLong_FromLongLong(last);
+}
+
+/* lerp(v, inv, jj, w, base, out, bad) -> bool
+ *
+ * One channel of another die at the times bracket() placed: out[i] = v[jj] + w (v[jj+1] -
+ * v[jj]) per component (v float64, m rows of c components; out n rows), and bad[i] where the
+ * pair does not bracket the time (base False) or either sample is invalid (inv). Returns
+ * whether any is bad. */
+static PyObject *lerp(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 7) {
+        PyErr_SetString(PyExc_TypeError, "lerp() takes 7 arguments");
+        return NULL;
+    }
+    Py_buffer vb, ib, jb, wb, bb, ob, xb;
+    Py_buffer *views[7] = {&vb, &ib, &jb, &wb, &bb, &ob, &xb};
+    int got = 0;
+    for (; got < 7; got++) {
+        if (!get_buffer(args[got], views[got], 0, got >= 5, "lerp"))
+            break;
+    }
+    if (got < 7) {
+        while (got--)
+            PyBuffer_Release(views[got]);
+        return NULL;
+    }
+    const Py_ssize_t m = ib.len, n = jb.len / 8;
+    const Py_ssize_t c = m ? vb.len / 8 / m : 0;
+    const char *err = NULL;
+    if (m < 2 || vb.len != m * c * 8 || c < 1)
+        err = "lerp: v and inv disagree on the samples";
+    else if (wb.len < n * 8 || bb.len < n || xb.len < n || ob.len != n * c * 8)
+        err = "lerp: outputs sized for another batch";
+    const double *v = (const double *)vb.buf, *w = (const double *)wb.buf;
+    const uint8_t *inv = (const uint8_t *)ib.buf, *base = (const uint8_t *)bb.buf;
+    const int64_t *jj = (const int64_t *)jb.buf;
+    double *out = (double *)ob.buf;
+    uint8_t *bad = (uint8_t *)xb.buf;
+    int any_bad = 0;
+    for (Py_ssize_t i = 0; err == NULL && i < n; i++) {
+        const int64_t k = jj[i];
+        if (k < 0 || k > m - 2) {
+            err = "lerp: an index outside the samples";
+            break;
+        }
+        const double *lo = v + k * c, *hi = lo + c;
+        for (Py_ssize_t j = 0; j < c; j++)
+            out[i * c + j] = lo[j] + w[i] * (hi[j] - lo[j]);
+        bad[i] = !(base[i] && !inv[k] && !inv[k + 1]);
+        any_bad |= bad[i];
+    }
+    for (int i = 6; i >= 0; i--)
+        PyBuffer_Release(views[i]);
+    if (err != NULL) {
+        PyErr_SetString(PyExc_ValueError, err);
+        return NULL;
+    }
+    return PyBool_FromLong(any_bad);
 }
 
 static PyMethodDef methods[] = {
@@ -181,6 +319,10 @@ static PyMethodDef methods[] = {
      "Stamps on the fitted line, steered and rounded (SampleClock.update's tail)."},
     {"tick_steps", (PyCFunction)(void (*)(void))tick_steps, METH_FASTCALL,
      "(largest, sum) of a counter's steps modulo its wrap."},
+    {"bracket", (PyCFunction)(void (*)(void))bracket, METH_FASTCALL,
+     "Where times fall among another die's samples (the align stage)."},
+    {"lerp", (PyCFunction)(void (*)(void))lerp, METH_FASTCALL,
+     "One channel interpolated at bracketed times, and where it has no value."},
     {"reaches", (PyCFunction)(void (*)(void))reaches, METH_FASTCALL,
      "Whether any int32 count is at or beyond +-full_scale."},
     {NULL, NULL, 0, NULL},

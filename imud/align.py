@@ -20,11 +20,13 @@ import numpy.typing as npt
 
 from imud.channels import Channel
 from imud.chips.api import RawChannel
+from imud.compiled import load
 
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
 _NONE_I64 = np.zeros(0, dtype=np.int64)
+_kernels = load("imud._kernels")  # _Follower.at in two calls, when built
 
 
 @dataclass(slots=True)
@@ -98,6 +100,8 @@ class _Follower(_Samples):
                 shape = (n, *self.data[ch].shape[1:])
                 out[ch] = RawChannel(np.zeros(shape), rc.scale, rc.full_scale, np.ones(n, bool))
             return out
+        if _kernels is not None:
+            return self._at_compiled(t)
         j = np.searchsorted(a_t, t, side="right") - 1  # newest sample at or before t
         jj = np.clip(j, 0, a_t.size - 2)
         t0, t1 = a_t[jj], a_t[jj + 1]
@@ -111,6 +115,26 @@ class _Follower(_Samples):
             valid = base & ~inv[jj] & ~inv[jj + 1]
             out[ch] = RawChannel(values, rc.scale, rc.full_scale, None if valid.all() else ~valid)
         self.drop(int(max(jj[-1], 0)))  # samples wholly before the newest time: no longer needed
+        return out
+
+    def _at_compiled(self, t: I64) -> dict[Channel, RawChannel]:
+        """`at` (two samples or more) in one kernel call to place the times and one a channel:
+        the same values, to the bit (tests/test_compiled.py)."""
+        assert _kernels is not None
+        n = t.size
+        jj = np.empty(n, dtype=np.int64)
+        w = np.empty(n, dtype=np.float64)
+        base = np.empty(n, dtype=bool)
+        last = _kernels.bracket(self.t, self.seq, t, jj, w, base)
+        out: dict[Channel, RawChannel] = {}
+        for ch, rc in self.meta.items():
+            v = np.ascontiguousarray(self.data[ch], dtype=np.float64)  # (floats since add())
+            values = np.empty((n, *v.shape[1:]), dtype=np.float64)
+            bad = np.empty(n, dtype=bool)
+            inv = np.ascontiguousarray(self.invalid[ch])
+            any_bad = _kernels.lerp(v, inv, jj, w, base, values, bad)
+            out[ch] = RawChannel(values, rc.scale, rc.full_scale, bad if any_bad else None)
+        self.drop(max(last, 0))
         return out
 
 

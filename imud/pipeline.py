@@ -64,12 +64,10 @@ def stamp(clock: SampleClock, t: FifoRead, n: int) -> Stamped:
 
 def reaches(data: npt.NDArray[np.generic], full_scale: float) -> bool:
     """Whether any count is at or beyond +-full_scale: in one pass of the compiled kernel when
-    it was built and the counts are contiguous int32s, else two NumPy reductions."""
-    if _kernels is not None and data.dtype == _I32:
-        try:
-            return bool(_kernels.reaches(data, full_scale))
-        except (BufferError, ValueError):  # not contiguous (NumPy says ValueError)
-            pass
+    it was built and the counts are int32s in one or two dimensions, else two NumPy
+    reductions."""
+    if _kernels is not None and data.dtype == _I32 and data.ndim <= 2:
+        return bool(_kernels.reaches(data, full_scale))
     return bool(_max(data, None) >= full_scale or _min(data, None) <= -full_scale)
 
 

@@ -19,12 +19,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from imud import compiled, pipeline, timestamps
+from imud import align, compiled, pipeline, timestamps
+from imud.channels import Channel
+from imud.chips.api import RawChannel
+from imud.chips.bmi088 import decode as bmi
+from imud.chips.bmi088 import registers as bmi_r
 from imud.chips.icm42688p import driver as icm
 from imud.chips.icm42688p import registers as icm_r
 from tests.helpers import make_rig
 
-KERNELS = ["imud._kernels", "imud.chips.icm42688p._fifo"]
+KERNELS = ["imud._kernels", "imud.chips.icm42688p._fifo", "imud.chips.bmi088._fifo"]
 FUZZ = settings(max_examples=300, deadline=None)
 
 
@@ -252,15 +256,151 @@ def test_reaches_matches_numpy(values: list[int], fs: float) -> None:
     a = np.asarray(values, dtype=np.int32)
     want = bool(a.max() >= fs or a.min() <= -fs)
     assert k.reaches(a, fs) is want
-    assert pipeline.reaches(a[::2], fs) is bool(a[::2].max() >= fs or a[::2].min() <= -fs)
+    assert k.reaches(a[::2], fs) is bool(a[::2].max() >= fs or a[::2].min() <= -fs)
+    # a driver's columns of a wider record: two dimensions, strided
+    m = np.resize(a, (len(values), 6))[:, 1:4]
+    assert k.reaches(m, fs) is bool(m.max() >= fs or m.min() <= -fs)
+    assert k.reaches(m.T, fs) is bool(m.max() >= fs or m.min() <= -fs)
 
 
 def test_reaches_refuses_other_dtypes() -> None:
     k = _kernel("imud._kernels")
     with pytest.raises(TypeError, match="int32"):
         k.reaches(np.zeros(3, np.int64), 1.0)
+    with pytest.raises(TypeError, match="two dimensions"):
+        k.reaches(np.zeros((2, 2, 2), np.int32), 1.0)
     # the pipeline hands those to NumPy instead
     assert pipeline.reaches(np.array([0.0, 2.5]), 2.5) is True
+
+
+# --- BMI088 accel FIFO walk ----------------------------------------------------------------------
+
+
+def test_bmi_kernel_constants_are_the_register_maps() -> None:
+    k = _kernel("imud.chips.bmi088._fifo")
+    h = bmi_r.AccFifoHeader
+    assert k.HEADER_MASK == bmi_r.ACC_FIFO_HEADER_MASK
+    assert (k.HDR_ACCEL, k.HDR_SKIP, k.HDR_SENSORTIME) == (h.ACCEL, h.SKIP, h.SENSORTIME)
+    assert (k.HDR_INPUT_CONFIG, k.HDR_SAMPLE_DROP) == (h.INPUT_CONFIG, h.SAMPLE_DROP)
+    assert k.HDR_OVER_READ == h.OVER_READ
+    assert k.ACCEL_FRAME == bmi_r.ACC_FRAME_BYTES == bmi_r.ACC_FIFO_FRAME_BYTES[h.ACCEL]
+    sizes = {h.SKIP: 2, h.SENSORTIME: 4, h.INPUT_CONFIG: 2, h.SAMPLE_DROP: 2}
+    assert {k: v for k, v in bmi_r.ACC_FIFO_FRAME_BYTES.items() if k != h.ACCEL} == sizes
+
+
+@st.composite
+def accel_fifo(draw: st.DrawFn) -> bytes:
+    """Frames as the die writes them (any tag bits), control frames between, and sometimes a
+    stray byte, an over-read marker or a frame cut off at the end."""
+    out = b""
+    for _ in range(draw(st.integers(0, 30))):
+        kind = draw(st.sampled_from(["accel"] * 6 + ["skip", "time", "config", "drop", "junk"]))
+        tag = draw(st.integers(0, 3))
+        if kind == "accel":
+            out += bytes([0x84 | tag]) + draw(st.binary(min_size=6, max_size=6))
+        elif kind == "skip":
+            out += bytes([0x40 | tag, draw(st.integers(0, 255))])
+        elif kind == "time":
+            out += bytes([0x44 | tag]) + draw(st.binary(min_size=3, max_size=3))
+        elif kind in ("config", "drop"):
+            out += bytes([(0x48 if kind == "config" else 0x50) | tag, 0])
+        else:
+            out += bytes([draw(st.integers(0, 255))])
+    return out + draw(st.sampled_from([b"", b"\x80", b"\x80\x00\x00", b"\x84\x01\x02", b"\x44"]))
+
+
+def _same_accel_fifo(data: bytes) -> None:
+    _kernel("imud.chips.bmi088._fifo")
+    got, want = bmi.decode_accel_fifo(data), bmi.decode_accel_fifo_numpy(data)
+    assert got.accel.dtype == want.accel.dtype and got.accel.shape == want.accel.shape
+    assert got.accel.tolist() == want.accel.tolist()
+    assert got.skipped_before == want.skipped_before
+    assert got.sensortime == want.sensortime
+    assert got.over_read == want.over_read and got.corrupt_at == want.corrupt_at
+
+
+@FUZZ
+@given(accel_fifo())
+def test_bmi_accel_walk_matches_numpy_on_frames(data: bytes) -> None:
+    _same_accel_fifo(data)
+
+
+@FUZZ
+@given(st.binary(max_size=1100))
+def test_bmi_accel_walk_matches_numpy_on_any_bytes(data: bytes) -> None:
+    _same_accel_fifo(data)
+
+
+# --- the align stage's interpolation -------------------------------------------------------------
+
+
+@st.composite
+def follower(draw: st.DrawFn) -> tuple[list[Any], Any]:
+    """Reads of another die (times rising, seqs with gaps, some values invalid, a 3-axis and a
+    1-value channel), then the primary's times to place among them."""
+    reads = []
+    t, seq = draw(st.integers(0, 10**6)), 0
+    for _ in range(draw(st.integers(1, 4))):
+        n = draw(st.integers(1, 12))
+        steps = draw(st.lists(st.integers(1, 900_000), min_size=n, max_size=n))
+        ts = t + np.cumsum(steps)
+        gaps = draw(st.lists(st.sampled_from([1, 1, 1, 2, 5]), min_size=n, max_size=n))
+        seqs = seq + np.cumsum(gaps)
+        t, seq = int(ts[-1]), int(seqs[-1])
+        acc = np.array(draw(st.lists(st.integers(-32768, 32767), min_size=3 * n, max_size=3 * n)))
+        inv = np.array(
+            draw(st.lists(st.sampled_from([False] * 5 + [True]), min_size=n, max_size=n))
+        )
+        channels = {
+            Channel.ACCEL: RawChannel(acc.reshape(n, 3).astype(np.int32), 0.01, 32768.0,
+                                      inv if inv.any() else None),
+            Channel.TEMPERATURE: RawChannel(np.linspace(20, 21, n)),
+        }  # fmt: skip
+        reads.append((seqs.astype(np.int64), ts.astype(np.int64), channels))
+    lo, hi = int(reads[0][1][0]) - 2_000_000, t + 2_000_000
+    times = sorted(set(draw(st.lists(st.integers(lo, hi), min_size=1, max_size=40))))
+    return reads, np.array(times, dtype=np.int64)
+
+
+@FUZZ
+@given(follower())
+def test_interpolation_matches_numpy(case: tuple[list[Any], Any]) -> None:
+    _kernel("imud._kernels")
+    reads, t = case
+    results = []
+    for kernels in (align._kernels, None):
+        f = align._Follower()
+        for seq, ts, channels in reads:
+            f.add(seq, ts, channels)
+        saved, align._kernels = align._kernels, kernels
+        try:
+            results.append((f.at(t), f.t.tolist(), f.seq.tolist()))
+        finally:
+            align._kernels = saved
+    (fast, ft, fs), (slow, st_, ss) = results
+    assert (ft, fs) == (st_, ss)  # the same history let go
+    assert fast.keys() == slow.keys()
+    for ch in fast:
+        a, b = fast[ch], slow[ch]
+        assert a.data.dtype == b.data.dtype and a.data.shape == b.data.shape
+        assert a.data.tobytes() == b.data.tobytes(), ch
+        assert (a.invalid is None) == (b.invalid is None)
+        if a.invalid is not None and b.invalid is not None:
+            assert a.invalid.tolist() == b.invalid.tolist()
+
+
+def test_interpolation_refuses_mismatched_buffers() -> None:
+    k = _kernel("imud._kernels")
+    n = 3
+    jj, w, base = np.zeros(n, np.int64), np.zeros(n), np.ones(n, bool)
+    v, inv = np.zeros((4, 3)), np.zeros(4, bool)
+    with pytest.raises(ValueError, match="outputs"):
+        k.lerp(v, inv, jj, w, base, np.empty((n, 2)), np.empty(n, bool))
+    with pytest.raises(ValueError, match="outside"):
+        k.lerp(v, inv, np.full(n, 3, np.int64), w, base, np.empty((n, 3)), np.empty(n, bool))
+    with pytest.raises(ValueError, match="seq"):
+        k.bracket(np.zeros(4, np.int64), np.zeros(2, np.int64), np.zeros(n, np.int64), jj, w,
+                  base)  # fmt: skip
 
 
 # --- a whole chip both ways ----------------------------------------------------------------------
@@ -280,6 +420,38 @@ def _icm_run(hires: bool) -> list[bytes]:
     rig = make_rig(device, sim)
     rig.run(3.0, jitter_ns=400_000, seed=3)
     return rig.out
+
+
+def _bmi_run() -> list[bytes]:
+    device = {
+        "chip": "bmi088",
+        "bus": {"kind": "sim", "transport": "spi", "cs": 0},
+        "gyro_bus": {"kind": "sim", "transport": "spi", "cs": 1},
+        "odr_hz": 2000,
+        "accel_odr_hz": 1600,
+        "gyro_filter_hz": 532,
+    }
+    sim = {"seed": 7, "clock_error": 0.003, "faults": FAULTS,
+           "motion": {"kind": "tumble", "rate_dps": [10.0, 20.0, 100.0]}}  # fmt: skip
+    rig = make_rig(device, sim)
+    rig.run(4.0, jitter_ns=400_000, seed=4)
+    return rig.out
+
+
+def test_a_simulated_bmi088_publishes_the_same_bytes_both_ways(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Both dies' FIFOs, their clocks and the align stage with every kernel, then with the NumPy
+    twins: the same published batches, byte for byte."""
+    _kernel("imud._kernels")
+    fast = _bmi_run()
+    monkeypatch.setattr(bmi, "_fifo", None)
+    monkeypatch.setattr(align, "_kernels", None)
+    monkeypatch.setattr(timestamps, "_kernels", None)
+    monkeypatch.setattr(pipeline, "_kernels", None)
+    slow = _bmi_run()
+    assert len(fast) > 100
+    assert fast == slow
 
 
 @pytest.mark.parametrize("hires", [False, True])

@@ -22,6 +22,7 @@ from imud.chips.bmi088.registers import (
     TEMP_INVALID_MSB,
     AccFifoHeader,
 )
+from imud.compiled import load
 from imud.units import STANDARD_GRAVITY
 
 _HDR_ACCEL = int(AccFifoHeader.ACCEL)
@@ -29,6 +30,7 @@ _HDR_SKIP = int(AccFifoHeader.SKIP)
 _HDR_SENSORTIME = int(AccFifoHeader.SENSORTIME)
 _HDR_OVER_READ = int(AccFifoHeader.OVER_READ)
 _FRAME_LENGTH = {int(h): n for h, n in ACC_FIFO_FRAME_BYTES.items()}
+_fifo = load("imud.chips.bmi088._fifo")  # the accel walk in one call, when built
 
 
 def accel_scale_ms2(range_g: int) -> float:
@@ -74,6 +76,16 @@ def _accel_run(buf: npt.NDArray[np.uint8], start: int) -> tuple[npt.NDArray[np.i
 
 
 def decode_accel_fifo(data: bytes) -> AccelFifo:
+    """Walk the accel FIFO: in one call of the compiled kernel when it was built (the same
+    results), else `decode_accel_fifo_numpy`."""
+    if _fifo is None:
+        return decode_accel_fifo_numpy(data)
+    accel = np.empty((len(data) // ACC_FRAME_BYTES, 3), dtype=np.int32)
+    n, skipped, sensortime, over_read, corrupt_at = _fifo.decode_accel(data, accel)
+    return AccelFifo(accel[:n], skipped, sensortime, over_read, corrupt_at)
+
+
+def decode_accel_fifo_numpy(data: bytes) -> AccelFifo:
     """Walk the accel FIFO: vectorised over runs of data frames, one step per control frame."""
     buf = np.frombuffer(data, dtype=np.uint8)
     runs: list[npt.NDArray[np.int32]] = []
