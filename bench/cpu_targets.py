@@ -18,6 +18,7 @@ table prints both side by side with the machine's load average at each:
 
     git worktree add /tmp/before <commit>
     .venv/bin/python bench/cpu_targets.py --before /tmp/before --after . --seconds 20
+    .venv/bin/python bench/cpu_targets.py --before . --after . --pure-before   # the kernels' part
 
 Scheduler-dependent: a measurement, never a test (docs/performance.md section 19).
 """
@@ -66,8 +67,12 @@ motion = { kind = "tumble", rate_dps = [0.0, 0.0, 100.0] }
 Row = tuple[str, str, str]  # what, before, after
 
 
-def env_for(tree: Path) -> dict[str, str]:
-    return {**os.environ, "PYTHONPATH": str(tree.resolve())}
+def env_for(tree: Path, pure: bool = False) -> dict[str, str]:
+    """The environment that runs `tree`'s imud; `pure`: with the NumPy twins of its compiled
+    kernels (imud.compiled)."""
+    env = {**os.environ, "PYTHONPATH": str(tree.resolve())}
+    env.pop("IMUD_PURE_PYTHON", None)
+    return {**env, "IMUD_PURE_PYTHON": "1"} if pure else env
 
 
 def _started(config: Path, env: dict[str, str], tmp: Path) -> tuple[subprocess.Popen[bytes], str]:
@@ -125,9 +130,12 @@ def status_wall(env: dict[str, str], busy: int, asks: int = 10) -> list[float]:
     return walls
 
 
-def pair(what: Callable[[dict[str, str]], Any], trees: list[Path]) -> list[tuple[Any, float]]:
+Tree = tuple[Path, bool]  # a source tree, and whether it runs its kernels' NumPy twins
+
+
+def pair(what: Callable[[dict[str, str]], Any], trees: list[Tree]) -> list[tuple[Any, float]]:
     """`what` measured with each tree in turn, with the load average after each."""
-    return [(what(env_for(t)), os.getloadavg()[0]) for t in trees]
+    return [(what(env_for(t, pure)), os.getloadavg()[0]) for t, pure in trees]
 
 
 def main() -> int:
@@ -136,8 +144,14 @@ def main() -> int:
     p.add_argument("--after", type=Path, default=ROOT)
     p.add_argument("--seconds", type=float, default=20.0, help="each CPU window")
     p.add_argument("--adis-seconds", type=float, default=60.0)
+    p.add_argument(
+        "--pure-before",
+        action="store_true",
+        help="the before tree runs its compiled kernels' NumPy twins (IMUD_PURE_PYTHON=1): "
+        "with --before . --after ., the kernels' own effect",
+    )
     args = p.parse_args()
-    trees = [args.before, args.after]
+    trees: list[Tree] = [(args.before, args.pure_before), (args.after, False)]
     rows: list[Row] = []
 
     def cell(v: str, load: float) -> str:
@@ -194,7 +208,8 @@ def main() -> int:
             vals.append(cell(f"median {statistics.median(walls):.2f} s, max {max(walls):.2f}", ld))
         rows.append((f"`imud status` wall, {busy} busy processes beside", *vals))
     print(" ".join(sys.argv))
-    print(f"| target | before ({args.before}) | after ({args.after}) |")
+    pure = ", NumPy twins" if args.pure_before else ""
+    print(f"| target | before ({args.before}{pure}) | after ({args.after}) |")
     print("|---|---|---|")
     for what, before, after in rows:
         print(f"| {what} | {before} | {after} |")

@@ -314,6 +314,102 @@ static PyObject *lerp(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     return PyBool_FromLong(any_bad);
 }
 
+/* pack(prefix, t, sample_flags, channels) -> bytes
+ *
+ * A wire batch's bytes after its header and name (which `prefix` holds): the int64 stamps,
+ * the uint32 sample flags (zeros when None), then each channel's values as float32, in the
+ * order given. Native byte order: the caller uses it only on a little-endian machine (the wire
+ * format's). Channels must be C-contiguous float64 or float32 (TypeError or BufferError
+ * otherwise: the caller then packs them with NumPy). */
+#define PACK_MAX 16
+static PyObject *pack(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 4 || !PyTuple_Check(args[3])) {
+        PyErr_SetString(PyExc_TypeError, "pack(prefix, t, sample_flags, channels: tuple)");
+        return NULL;
+    }
+    const Py_ssize_t k = PyTuple_GET_SIZE(args[3]);
+    if (k > PACK_MAX) {
+        PyErr_SetString(PyExc_ValueError, "pack: too many channels");
+        return NULL;
+    }
+    Py_buffer pre, tb, sb, ch[PACK_MAX];
+    int have_sf = args[2] != Py_None, got = 0, ok = 0;
+    PyObject *out = NULL;
+    if (PyObject_GetBuffer(args[0], &pre, PyBUF_C_CONTIGUOUS) < 0)
+        return NULL;
+    if (PyObject_GetBuffer(args[1], &tb, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
+        goto release_pre;
+    if (!is_native(&tb, 8, "ql")) {
+        PyErr_SetString(PyExc_TypeError, "pack: stamps must be int64");
+        goto release_t;
+    }
+    const Py_ssize_t n = tb.len / 8;
+    if (have_sf) {
+        if (PyObject_GetBuffer(args[2], &sb, PyBUF_C_CONTIGUOUS) < 0)
+            goto release_t;
+        if (sb.itemsize != 4 || sb.len != 4 * n) {
+            PyErr_SetString(PyExc_TypeError, "pack: sample flags must be n uint32s");
+            goto release_sf;
+        }
+    }
+    Py_ssize_t size = pre.len + 12 * n;
+    for (; got < k; got++) {
+        Py_buffer *v = &ch[got];
+        if (PyObject_GetBuffer(PyTuple_GET_ITEM(args[3], got), v,
+                               PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0)
+            goto release_ch;
+        const char *f = v->format ? v->format : "";
+        if ((f[0] == '<' && !PY_BIG_ENDIAN) || f[0] == '=' || f[0] == '@')
+            f++;
+        if (!((f[0] == 'd' && v->itemsize == 8) || (f[0] == 'f' && v->itemsize == 4)) || f[1]) {
+            PyErr_SetString(PyExc_TypeError, "pack: channels must be float64 or float32");
+            got++;
+            goto release_ch;
+        }
+        size += 4 * (v->len / v->itemsize);
+    }
+    out = PyBytes_FromStringAndSize(NULL, size);
+    if (out == NULL)
+        goto release_ch;
+    char *w = PyBytes_AS_STRING(out);
+    memcpy(w, pre.buf, pre.len);
+    w += pre.len;
+    memcpy(w, tb.buf, 8 * n);
+    w += 8 * n;
+    if (have_sf)
+        memcpy(w, sb.buf, 4 * n);
+    else
+        memset(w, 0, 4 * n);
+    w += 4 * n;
+    for (Py_ssize_t i = 0; i < k; i++) {
+        const Py_ssize_t m = ch[i].len / ch[i].itemsize;
+        if (ch[i].itemsize == 4) {
+            memcpy(w, ch[i].buf, 4 * m);
+        } else {
+            const double *src = (const double *)ch[i].buf;
+            float *dst = (float *)w; /* bytes objects are aligned for any scalar */
+            for (Py_ssize_t j = 0; j < m; j++)
+                dst[j] = (float)src[j];
+        }
+        w += 4 * m;
+    }
+    ok = 1;
+release_ch:
+    while (got-- > 0)
+        PyBuffer_Release(&ch[got]);
+release_sf:
+    if (have_sf)
+        PyBuffer_Release(&sb);
+release_t:
+    PyBuffer_Release(&tb);
+release_pre:
+    PyBuffer_Release(&pre);
+    if (!ok)
+        Py_CLEAR(out);
+    return out;
+}
+
 static PyMethodDef methods[] = {
     {"stamps", (PyCFunction)(void (*)(void))stamps, METH_FASTCALL,
      "Stamps on the fitted line, steered and rounded (SampleClock.update's tail)."},
@@ -323,6 +419,8 @@ static PyMethodDef methods[] = {
      "Where times fall among another die's samples (the align stage)."},
     {"lerp", (PyCFunction)(void (*)(void))lerp, METH_FASTCALL,
      "One channel interpolated at bracketed times, and where it has no value."},
+    {"pack", (PyCFunction)(void (*)(void))pack, METH_FASTCALL,
+     "A wire batch's stamps, flags and float32 channels after its header."},
     {"reaches", (PyCFunction)(void (*)(void))reaches, METH_FASTCALL,
      "Whether any int32 count is at or beyond +-full_scale."},
     {NULL, NULL, 0, NULL},

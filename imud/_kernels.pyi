@@ -18,3 +18,26 @@ def stamps(
 ) -> None: ...
 def tick_steps(ticks: npt.NDArray[np.int64], modulo: int) -> tuple[int, int]: ...
 def reaches(data: npt.NDArray[Any], full_scale: float) -> bool: ...
+def bracket(
+    a_t: npt.NDArray[np.int64],
+    seq: npt.NDArray[np.int64],
+    t: npt.NDArray[np.int64],
+    jj: npt.NDArray[np.int64],
+    w: npt.NDArray[np.float64],
+    base: npt.NDArray[np.bool_],
+) -> int: ...
+def lerp(
+    v: npt.NDArray[np.float64],
+    inv: npt.NDArray[np.bool_],
+    jj: npt.NDArray[np.int64],
+    w: npt.NDArray[np.float64],
+    base: npt.NDArray[np.bool_],
+    out: npt.NDArray[np.float64],
+    bad: npt.NDArray[np.bool_],
+) -> bool: ...
+def pack(
+    prefix: bytes,
+    t: npt.NDArray[np.int64],
+    sample_flags: npt.NDArray[np.uint32] | None,
+    channels: tuple[npt.NDArray[Any], ...],
+) -> bytes: ...

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import struct
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -16,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from imud.channels import CHANNELS, ORDER, Channel, SampleFlag
+from imud.compiled import load
 
 MAGIC = b"IMUD"
 VERSION = 2
@@ -32,6 +34,9 @@ _KNOWN = sum(CHANNELS)
 _BIT_WIDTH = {c: (bit, width) for c, bit, width in ORDER}
 
 F32 = npt.NDArray[np.float32]
+_kernels = load("imud._kernels")
+# the kernel writes in the machine's byte order, which must be the wire's (little-endian)
+_pack = _kernels.pack if _kernels is not None and sys.byteorder == "little" else None
 
 
 @dataclass(frozen=True, slots=True)
@@ -103,21 +108,29 @@ def encode(
     n = t.shape[0]
     pad = (-len(name)) % 8
     mask = 0
-    parts: list[bytes] = []
+    arrays: list[npt.NDArray[np.generic]] = []
     for ch in sorted(channels):  # bit order
         bit, width = _BIT_WIDTH[ch]
         values = channels[ch]
-        arr = np.ascontiguousarray(values, dtype="<f4")
+        arr = values if isinstance(values, np.ndarray) else np.asarray(values, dtype="<f4")
         if arr.size != n * width:
             raise WireError(f"{CHANNELS[ch].key}: {arr.shape} values for {n} samples")
-        parts.append(arr.tobytes())
+        arrays.append(arr)
         mask |= bit
-    if sample_flags is None:
-        sf = bytes(4 * n)
-    else:
-        sf = np.ascontiguousarray(sample_flags, dtype="<u4").reshape(n).tobytes()
+    sf = None
+    if sample_flags is not None:
+        sf = np.ascontiguousarray(sample_flags, dtype="<u4").reshape(n)
     head = HEADER.pack(MAGIC, VERSION, kind, len(name), first_seq, n, flags, lost_before, mask)
-    return b"".join((head, name, b"\0" * pad, t.tobytes(), sf, *parts))
+    prefix = b"".join((head, name, b"\0" * pad))
+    if _pack is not None:
+        try:  # one copy into the batch's bytes, float32 on the way
+            packed: bytes = _pack(prefix, t, sf, tuple(arrays))
+            return packed
+        except (TypeError, ValueError, BufferError):
+            pass  # channels of another dtype, or not contiguous: NumPy packs them
+    parts = [np.ascontiguousarray(a, dtype="<f4").tobytes() for a in arrays]
+    flags_bytes = bytes(4 * n) if sf is None else sf.tobytes()
+    return b"".join((prefix, t.tobytes(), flags_bytes, *parts))
 
 
 def peek(buf: bytes | memoryview) -> tuple[int, int, int, int, int]:

@@ -19,7 +19,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from imud import align, compiled, pipeline, timestamps
+from imud import align, compiled, pipeline, timestamps, wire
 from imud.channels import Channel
 from imud.chips.api import RawChannel
 from imud.chips.bmi088 import decode as bmi
@@ -403,6 +403,68 @@ def test_interpolation_refuses_mismatched_buffers() -> None:
                   base)  # fmt: skip
 
 
+# --- the wire batch's bytes ----------------------------------------------------------------------
+
+
+@FUZZ
+@given(
+    st.integers(0, 50),
+    st.sampled_from([np.float64, np.float32]),
+    st.booleans(),
+    st.booleans(),
+    st.text(max_size=9),
+    st.integers(0, 3),
+)
+def test_pack_matches_numpy(
+    n: int, dtype: Any, flagged: bool, strided: bool, name: str, seed: int
+) -> None:
+    """Stamps, flags and channels (float64 or float32, values float32 cannot hold among them:
+    huge, tiny, NaN) packed by the kernel and by NumPy: the same bytes."""
+    _kernel("imud._kernels")
+    rng = np.random.default_rng(seed)
+    special = np.array([0.0, -0.0, 1e39, -1e39, 1e-46, np.nan, np.inf, 1 / 3])
+    values = rng.normal(size=(n, 8)) * 10.0 ** rng.integers(-8, 8, size=(n, 8))
+    if n:
+        values.flat[: min(values.size, special.size)] = special[: min(values.size, 8)]
+    with np.errstate(over="ignore"):  # (1e39 is float32's infinity: on purpose)
+        wide = values.astype(dtype)
+    channels = {
+        Channel.ACCEL: wide[:, 0:6:2] if strided else np.ascontiguousarray(wide[:, 0:3]),
+        Channel.GYRO: np.ascontiguousarray(wide[:, 3:6]),
+        Channel.TEMPERATURE: np.ascontiguousarray(wide[:, 6]),
+    }
+    t = np.cumsum(rng.integers(1, 10**6, size=n)).astype(np.int64)
+    sf = rng.integers(0, 2**32, size=n, dtype=np.uint32) if flagged else None
+    args = (name, 17, t, channels, sf)
+    saved = wire._pack
+    with np.errstate(over="ignore"):
+        fast = wire.encode(*args, flags=3, lost_before=2)
+        wire._pack = None
+        try:
+            slow = wire.encode(*args, flags=3, lost_before=2)
+        finally:
+            wire._pack = saved
+    assert fast == slow
+    b = wire.decode(fast)  # and it is a batch
+    assert b.count == n and b.t_ns.tolist() == t.tolist()
+
+
+def test_pack_refuses_what_it_cannot_pack() -> None:
+    k = _kernel("imud._kernels")
+    t = np.arange(3, dtype=np.int64)
+    with pytest.raises(TypeError, match="float64 or float32"):
+        k.pack(b"", t, None, (np.zeros(3, np.int32),))
+    with pytest.raises(TypeError, match="int64"):
+        k.pack(b"", t.astype(np.int32), None, ())
+    with pytest.raises(TypeError, match="sample flags"):
+        k.pack(b"", t, np.zeros(2, np.uint32), ())
+    with pytest.raises((BufferError, ValueError)):
+        k.pack(b"", t, None, (np.zeros((3, 6))[:, ::2],))
+    # and encode then packs such channels with NumPy
+    raw = wire.encode("d", 0, t, {Channel.ACCEL: np.zeros((3, 3), np.int32)})
+    assert wire.decode(raw).channels[Channel.ACCEL].tolist() == [[0.0] * 3] * 3
+
+
 # --- a whole chip both ways ----------------------------------------------------------------------
 
 FAULTS = {"garble_rate": 2e-3, "stall_rate": 2e-3, "stall_ms": 20.0}
@@ -449,6 +511,7 @@ def test_a_simulated_bmi088_publishes_the_same_bytes_both_ways(
     monkeypatch.setattr(align, "_kernels", None)
     monkeypatch.setattr(timestamps, "_kernels", None)
     monkeypatch.setattr(pipeline, "_kernels", None)
+    monkeypatch.setattr(wire, "_pack", None)
     slow = _bmi_run()
     assert len(fast) > 100
     assert fast == slow
@@ -465,6 +528,7 @@ def test_a_simulated_icm_publishes_the_same_bytes_both_ways(
     monkeypatch.setattr(icm, "_fifo", None)
     monkeypatch.setattr(timestamps, "_kernels", None)
     monkeypatch.setattr(pipeline, "_kernels", None)
+    monkeypatch.setattr(wire, "_pack", None)
     slow = _icm_run(hires)
     assert len(fast) > 100
     assert fast == slow
