@@ -410,6 +410,119 @@ release_pre:
     return out;
 }
 
+/* The quaternion product q x e as L(q) e (orient.ekf._left). */
+static void quat_left(const double q[4], const double e[4], double out[4]) {
+    const double w = q[0], x = q[1], y = q[2], z = q[3];
+    out[0] = w * e[0] - x * e[1] - y * e[2] - z * e[3];
+    out[1] = x * e[0] + w * e[1] - z * e[2] + y * e[3];
+    out[2] = y * e[0] + z * e[1] + w * e[2] - x * e[3];
+    out[3] = z * e[0] - y * e[1] + x * e[2] + w * e[3];
+}
+
+/* orient_chunk(gyro, b, dt, q, accel, steps, q_out, qq, qqa, kqqa) -> (w, x, y, z, kn, k)
+ *
+ * The orientation filter's integration of one chunk (orient.ekf.OrientationFilter._chunk, its
+ * NumPy twin): each sample's orientation from the gyro less its bias (first order, from the
+ * chunk's start) into q_out (m x 4); the interval's sums of q outer q (qq, 16), and with a valid
+ * accelerometer row of (q outer q) outer a (qqa, 16 x 3) and the same weighted by the sample's
+ * index in the interval (kqqa; the interval had `steps` samples before the chunk). Returns the
+ * orientation at the chunk's end (second order: Bortz's coning term), unit; the sum of the
+ * valid rows' indices and their number. A non-finite gyro value turns nothing. Equal to the
+ * twin to rounding (matrix products sum in another order): tests/test_compiled.py. */
+static PyObject *orient_chunk(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 10) {
+        PyErr_SetString(PyExc_TypeError, "orient_chunk() takes 10 arguments");
+        return NULL;
+    }
+    const double dt = PyFloat_AsDouble(args[2]);
+    const double steps0 = PyFloat_AsDouble(args[5]);
+    if (PyErr_Occurred())
+        return NULL;
+    const int has_accel = args[4] != Py_None;
+    Py_buffer gb, bb, qb, ab, ob, s1, s2, s3;
+    Py_buffer *views[8] = {&gb, &bb, &qb, &ob, &s1, &s2, &s3, &ab};
+    PyObject *objs[8] = {args[0], args[1], args[3], args[6], args[7], args[8], args[9], args[4]};
+    const int writable[8] = {0, 0, 0, 1, 1, 1, 1, 0};
+    const int count = has_accel ? 8 : 7;
+    int got = 0;
+    for (; got < count; got++)
+        if (!get_buffer(objs[got], views[got], 0, writable[got], "orient_chunk"))
+            break;
+    PyObject *result = NULL;
+    const char *err = NULL;
+    if (got < count)
+        goto done;
+    const Py_ssize_t m = gb.len / 24;
+    if (gb.len != m * 24 || bb.len != 24 || qb.len != 32 || ob.len != m * 32 || s1.len != 128 ||
+        s2.len != 384 || s3.len != 384 || (has_accel && ab.len != m * 24)) {
+        err = "orient_chunk: arrays of the wrong sizes";
+        goto done;
+    }
+    const double *g = (const double *)gb.buf, *b = (const double *)bb.buf;
+    const double *a = has_accel ? (const double *)ab.buf : NULL;
+    double q[4];
+    memcpy(q, qb.buf, sizeof q);
+    double *qo = (double *)ob.buf, *qq = (double *)s1.buf;
+    double *qqa = (double *)s2.buf, *kqqa = (double *)s3.buf;
+    double c[3] = {0, 0, 0}, mm[3][3] = {{0}};
+    double kn = 0.0;
+    long k = 0;
+    for (Py_ssize_t i = 0; i < m; i++) {
+        double th[3], prev[3];
+        for (int d = 0; d < 3; d++) {
+            const double v = (g[3 * i + d] - b[d]) * dt;
+            th[d] = isfinite(v) ? v : 0.0;
+            c[d] += th[d];
+            prev[d] = c[d] - th[d];
+        }
+        for (int r = 0; r < 3; r++)
+            for (int s = 0; s < 3; s++)
+                mm[r][s] += prev[r] * th[s];
+        const double t2 = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
+        const double tn = sqrt(t2), half = 0.5 * tn;
+        const double sc = sin(half) / (tn + 1e-300);
+        const double e[4] = {cos(half), c[0] * sc, c[1] * sc, c[2] * sc};
+        double *qk = qo + 4 * i;
+        quat_left(q, e, qk);
+        double q2[16];
+        for (int r = 0; r < 4; r++)
+            for (int s = 0; s < 4; s++)
+                q2[4 * r + s] = qk[r] * qk[s];
+        for (int p = 0; p < 16; p++)
+            qq[p] += q2[p];
+        if (has_accel && !isnan(a[3 * i])) {
+            const double idx = (double)i + steps0;
+            for (int p = 0; p < 16; p++)
+                for (int d = 0; d < 3; d++) {
+                    qqa[3 * p + d] += q2[p] * a[3 * i + d];
+                    kqqa[3 * p + d] += q2[p] * (a[3 * i + d] * idx);
+                }
+            kn += idx;
+            k++;
+        }
+    }
+    const double x = c[0] + 0.5 * (mm[1][2] - mm[2][1]);
+    const double y = c[1] + 0.5 * (mm[2][0] - mm[0][2]);
+    const double z = c[2] + 0.5 * (mm[0][1] - mm[1][0]);
+    const double tn = sqrt(x * x + y * y + z * z);
+    const double sc = tn > 1e-12 ? sin(0.5 * tn) / tn : 0.5;
+    const double e[4] = {cos(0.5 * tn), x * sc, y * sc, z * sc};
+    double qn[4];
+    quat_left(q, e, qn);
+    const double norm = sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3]);
+    result = Py_BuildValue("(ddddd" "l)", qn[0] / norm, qn[1] / norm, qn[2] / norm, qn[3] / norm,
+                           kn, k);
+done:
+    while (got-- > 0)
+        PyBuffer_Release(views[got]);
+    if (err != NULL) {
+        PyErr_SetString(PyExc_ValueError, err);
+        Py_CLEAR(result);
+    }
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"stamps", (PyCFunction)(void (*)(void))stamps, METH_FASTCALL,
      "Stamps on the fitted line, steered and rounded (SampleClock.update's tail)."},
@@ -421,6 +534,8 @@ static PyMethodDef methods[] = {
      "One channel interpolated at bracketed times, and where it has no value."},
     {"pack", (PyCFunction)(void (*)(void))pack, METH_FASTCALL,
      "A wire batch's stamps, flags and float32 channels after its header."},
+    {"orient_chunk", (PyCFunction)(void (*)(void))orient_chunk, METH_FASTCALL,
+     "The orientation filter's integration of one chunk of gyro samples."},
     {"reaches", (PyCFunction)(void (*)(void))reaches, METH_FASTCALL,
      "Whether any int32 count is at or beyond +-full_scale."},
     {NULL, NULL, 0, NULL},

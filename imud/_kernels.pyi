@@ -41,3 +41,15 @@ def pack(
     sample_flags: npt.NDArray[np.uint32] | None,
     channels: tuple[npt.NDArray[Any], ...],
 ) -> bytes: ...
+def orient_chunk(
+    gyro: npt.NDArray[np.float64],
+    b: npt.NDArray[np.float64],
+    dt: float,
+    q: npt.NDArray[np.float64],
+    accel: npt.NDArray[np.float64] | None,
+    steps: float,
+    q_out: npt.NDArray[np.float64],
+    qq: npt.NDArray[np.float64],
+    qqa: npt.NDArray[np.float64],
+    kqqa: npt.NDArray[np.float64],
+) -> tuple[float, float, float, float, float, int]: ...

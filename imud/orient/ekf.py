@@ -41,9 +41,11 @@ from enum import Enum, StrEnum
 import numpy as np
 import numpy.typing as npt
 
+from imud.compiled import load
 from imud.rotations import quat_exp, quat_to_matrix
 
 F64 = npt.NDArray[np.float64]
+_kernels = load("imud._kernels")  # a chunk's integration in one call, when built
 
 CHI2_2DOF_999 = 13.816  # innovation gate: chi-squared 2 dof, upper tail 1e-3
 CHI2_2DOF_95 = 5.991
@@ -391,6 +393,32 @@ class OrientationFilter:
         m = gyro.shape[0]
         if m == 0:
             return
+        if _kernels is None:
+            self._chunk_numpy(gyro, accel, dt, q_out)
+            return
+        iv = self._iv
+        w, x, y, z, kn, k = _kernels.orient_chunk(
+            np.ascontiguousarray(gyro),
+            np.ascontiguousarray(self.b, dtype=np.float64),
+            dt,
+            self.q,
+            None if accel is None else np.ascontiguousarray(accel),
+            float(iv.steps),
+            q_out,
+            iv.qq,
+            iv.qqa,
+            iv.kqqa,
+        )
+        if k:
+            iv.kn += kn
+            iv.n += k
+        iv.steps += m
+        iv.t += m * dt
+        self.q = np.array([w, x, y, z])
+
+    def _chunk_numpy(self, gyro: F64, accel: F64 | None, dt: float, q_out: F64) -> None:
+        """`_chunk` in NumPy: the compiled kernel's twin and reference."""
+        m = gyro.shape[0]
         theta = (gyro - self.b) * dt
         c = np.cumsum(theta, axis=0)
         x, y, z = c[-1].tolist()
