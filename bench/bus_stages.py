@@ -11,12 +11,15 @@ above an unwrapped run's (bench/config_cpu.py measures those).
     .venv/bin/python bench/bus_stages.py --config configs/sim.toml --bus sim:spi0
     PYTHONPATH=/tmp/before .venv/bin/python bench/bus_stages.py --config configs/sim.toml \\
         --bus sim:spi0     # another tree, side by side
+    .venv/bin/python bench/bus_stages.py --config configs/sim.toml --bus sim:sim0 \\
+        --wrap imud.orient.stage:OrientationStage.run     # more stages
 """
 
 from __future__ import annotations
 
 import argparse
 import functools
+import importlib
 import socket
 import sys
 import threading
@@ -75,11 +78,30 @@ def _wrap_method(totals: Totals, cls: type, name: str, label: str) -> None:
     setattr(cls, name, _own(totals, label, getattr(cls, name)))
 
 
+def _wrap_named(totals: Totals, spec: str) -> None:
+    """Time `module:function` or `module:Class.method` as a stage of its own."""
+    module_name, _, attr = spec.partition(":")
+    module = importlib.import_module(module_name)
+    owner: Any = module
+    *path, name = attr.split(".")
+    for part in path:
+        owner = getattr(owner, part)
+    setattr(owner, name, _own(totals, spec, getattr(owner, name)))
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--config", type=Path, required=True)
     p.add_argument("--bus", required=True, help="the bus key, as `imud status` names it")
     p.add_argument("--seconds", type=float, default=15.0)
+    p.add_argument(
+        "--wrap",
+        nargs="*",
+        default=[],
+        metavar="MODULE:NAME",
+        help="more stages to time: a function (imud.pipeline:to_si) or a method "
+        "(imud.orient.stage:OrientationStage.run)",
+    )
     args = p.parse_args()
     cfg = load_config(args.config)
     devices = [d for d in cfg.device if d.bus.key == args.bus]
@@ -95,6 +117,8 @@ def main() -> int:
     _wrap_method(totals, timestamps.SampleClock, "update", "sample clock")
     _wrap_method(totals, emit.Emitter, "emit", "emitter (encode and send included)")
     emit.encode = _own(totals, "wire encode", emit.encode)
+    for spec in args.wrap:
+        _wrap_named(totals, spec)
     wrapped: set[type] = set()
     attach = device.DeviceRunner.attach
 
