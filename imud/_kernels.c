@@ -93,7 +93,10 @@ static PyObject *stamps(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
             d = d > room ? room : d;
             est = cont + d;
         }
-        t[i] = (int64_t)rint(est);
+        /* NumPy casts a non-finite or out-of-range float to INT64_MIN on x86-64; C leaves it
+         * undefined (aarch64 saturates), so it is spelled out */
+        const double r = rint(est);
+        t[i] = (r >= -9223372036854775808.0 && r < 9223372036854775808.0) ? (int64_t)r : INT64_MIN;
     }
     if (has_last && n && t[0] <= last) {
         for (Py_ssize_t i = 0; i < n; i++) {
@@ -134,7 +137,8 @@ static PyObject *tick_steps(PyObject *self, PyObject *const *args, Py_ssize_t na
     const int64_t *v = (const int64_t *)in.buf;
     long long largest = 0, sum = 0;
     for (Py_ssize_t i = 1; i < n; i++) {
-        long long d = (v[i] - v[i - 1]) % mod;
+        /* wrapping like NumPy's int64 (signed overflow is undefined in C) */
+        long long d = (long long)((uint64_t)v[i] - (uint64_t)v[i - 1]) % mod;
         if (d < 0)
             d += mod; /* Python's and NumPy's modulo take the divisor's sign */
         if (d > largest)

@@ -239,6 +239,15 @@ def test_tick_steps_match_numpy(ticks: list[int], mod: int) -> None:
     assert k.tick_steps(a, mod) == want
 
 
+def test_tick_steps_wrap_as_numpy_does() -> None:
+    """Differences beyond int64 wrap in NumPy; the kernel wraps them the same way."""
+    k = _kernel("imud._kernels")
+    a = np.array([3 * 2**61, -3 * 2**61, 5, 2**63 - 1, -(2**63)], dtype=np.int64)
+    with np.errstate(over="ignore"):
+        steps = np.diff(a) % (1 << 16)
+    assert k.tick_steps(a, 1 << 16) == (int(steps.max()), int(steps.sum()))
+
+
 def test_tick_steps_refuse_other_integers() -> None:
     k = _kernel("imud._kernels")
     with pytest.raises(TypeError, match="int64"):
