@@ -14,6 +14,8 @@
 
 #include <stdint.h>
 
+#include "_buffers.h"
+
 /* registers.AccFifoHeader and ACC_FIFO_FRAME_BYTES; tests/test_compiled.py checks them */
 #define HEADER_MASK 0xFC
 #define HDR_ACCEL 0x84
@@ -49,13 +51,7 @@ static PyObject *decode_accel(PyObject *self, PyObject *const *args, Py_ssize_t 
     if (PyObject_GetBuffer(args[0], &d, PyBUF_C_CONTIGUOUS) < 0)
         return NULL;
     const Py_ssize_t len = d.len, cap = len / ACCEL_FRAME;
-    if (PyObject_GetBuffer(args[1], &a, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS) < 0) {
-        PyBuffer_Release(&d);
-        return NULL;
-    }
-    if (a.len < cap * 12) {
-        PyErr_Format(PyExc_ValueError, "accel: %zd bytes, need %zd", a.len, cap * 12);
-        PyBuffer_Release(&a);
+    if (!get_buffer(args[1], &a, cap * 12, 1, "accel")) {
         PyBuffer_Release(&d);
         return NULL;
     }

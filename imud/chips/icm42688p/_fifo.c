@@ -16,6 +16,8 @@
 
 #include <stdint.h>
 
+#include "_buffers.h"
+
 /* registers.Header; tests/test_compiled.py checks them against it */
 #define HDR_EMPTY 0x80
 #define HDR_ACCEL 0x40
@@ -27,17 +29,6 @@
 #define TIMESTAMP_MODULO 65536
 
 static inline int32_t be16(const uint8_t *p) { return (int16_t)(uint16_t)((p[0] << 8) | p[1]); }
-
-static int writable(PyObject *obj, Py_buffer *view, Py_ssize_t need, const char *what) {
-    if (PyObject_GetBuffer(obj, view, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS) < 0)
-        return 0;
-    if (view->len < need) {
-        PyErr_Format(PyExc_ValueError, "%s: %zd bytes, need %zd", what, view->len, need);
-        PyBuffer_Release(view);
-        return 0;
-    }
-    return 1;
-}
 
 /* decode(data, hires, break_over, accel, gyro, temp, ts, bad) -> (n, clean, breaks)
  *
@@ -62,15 +53,15 @@ static PyObject *decode(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     const Py_ssize_t stride = hires ? 20 : 16;
     const Py_ssize_t cap = d.len / stride;
     int got = 0;
-    if (writable(args[3], &a, cap * 12, "accel")) {
+    if (get_buffer(args[3], &a, cap * 12, 1, "accel")) {
         got = 1;
-        if (writable(args[4], &g, cap * 12, "gyro")) {
+        if (get_buffer(args[4], &g, cap * 12, 1, "gyro")) {
             got = 2;
-            if (writable(args[5], &t, cap * 8, "temp")) {
+            if (get_buffer(args[5], &t, cap * 8, 1, "temp")) {
                 got = 3;
-                if (writable(args[6], &s, cap * 8, "ts")) {
+                if (get_buffer(args[6], &s, cap * 8, 1, "ts")) {
                     got = 4;
-                    if (writable(args[7], &b, cap * 3, "bad"))
+                    if (get_buffer(args[7], &b, cap * 3, 1, "bad"))
                         got = 5;
                 }
             }
