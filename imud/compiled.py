@@ -4,7 +4,8 @@ compiler is there (pyproject.toml's ext-modules, each optional).
 Each kernel has a NumPy twin beside its caller, which is the reference (the results are the
 same to the bit: tests/test_compiled.py) and what runs when the kernel was not built, or with
 IMUD_PURE_PYTHON=1 in the environment (to compare, or to rule the kernels out). A process logs
-a warning for each kernel it asks for and does not find: it works, at a higher CPU cost a sample.
+a warning, once, for each kernel module it asks for and does not find: it works, at a higher
+CPU cost a sample.
 """
 
 from __future__ import annotations
@@ -32,6 +33,8 @@ def load(name: str) -> ModuleType | None:
     try:
         module = importlib.import_module(name)
     except ImportError as e:
+        if name in _tried:  # (several modules share a kernel module: said once)
+            return None
         _tried[name] = False
         log.warning(
             "compiled kernel %s not built (%s): its NumPy twin runs instead, at a higher CPU "
