@@ -3,9 +3,9 @@ compiler is there (pyproject.toml's ext-modules, each optional).
 
 Each kernel has a NumPy twin beside its caller, which is the reference (the results are the
 same to the bit: tests/test_compiled.py) and what runs when the kernel was not built, or with
-IMUD_PURE_PYTHON=1 in the environment (to compare, or to rule the kernels out). A process logs
-a warning, once, for each kernel module it asks for and does not find: it works, at a higher
-CPU cost a sample.
+IMUD_PURE_PYTHON=1 in the environment (to compare, or to rule the kernels out). A device about
+to stream logs a warning, once a process, for each kernel module asked for and not found
+(`warn_missing`): it works, at a higher CPU cost a sample.
 """
 
 from __future__ import annotations
@@ -32,20 +32,28 @@ def load(name: str) -> ModuleType | None:
         return None
     try:
         module = importlib.import_module(name)
-    except ImportError as e:
-        if name in _tried:  # (several modules share a kernel module: said once)
-            return None
+    except ImportError:
         _tried[name] = False
-        log.warning(
-            "compiled kernel %s not built (%s): its NumPy twin runs instead, at a higher CPU "
-            "cost a sample. Install a C compiler and Python's headers (Debian: build-essential "
-            "python3-dev) and reinstall imud (docs/performance.md)",
-            name,
-            e,
-        )
         return None
     _tried[name] = True
     return module
+
+
+def warn_missing() -> None:
+    """Log, once a process for each, the kernels asked for and not found: a device about to
+    stream says so (a command that merely imports a module does not)."""
+    new = [n for n in missing() if n not in _warned]
+    if new:
+        _warned.update(new)
+        log.warning(
+            "compiled kernels not built: %s. Their NumPy twins run instead, at a higher CPU "
+            "cost a sample. Install a C compiler and Python's headers (Debian: build-essential "
+            "python3-dev) and reinstall imud (docs/performance.md)",
+            ", ".join(new),
+        )
+
+
+_warned: set[str] = set()
 
 
 def missing() -> list[str]:

@@ -14,7 +14,7 @@ import logging
 import time
 from collections.abc import Callable, Iterator
 
-from imud import registry
+from imud import compiled, registry
 from imud.backoff import Backoff
 from imud.buses.models import describe
 from imud.calib.model import CalibrationModel
@@ -207,6 +207,7 @@ class DeviceRunner:
         self.driver, self.sim = driver, sim
         self.state = DeviceState.STARTING
         self.next_due_ns = 0
+        compiled.warn_missing()  # (its driver's module is imported by now)
 
     def bus_down(self, msg: str, retry_ns: int) -> None:
         """The bus (or this device's link on it) will not open; the worker retries it."""

@@ -36,7 +36,10 @@ FUZZ = settings(max_examples=300, deadline=None)
 def _kernel(name: str) -> Any:
     if compiled.pure():
         pytest.skip("IMUD_PURE_PYTHON is set: the NumPy twins run")
-    return importlib.import_module(name)
+    try:
+        return importlib.import_module(name)
+    except ImportError:  # test_every_kernel_is_built fails for it, saying why
+        pytest.skip(f"{name} was not built")
 
 
 @pytest.mark.parametrize("name", KERNELS)
@@ -59,6 +62,8 @@ def test_a_missing_kernel_falls_back_and_is_reported() -> None:
         "from imud import compiled\n"
         "assert compiled.load('imud._no_such_kernel') is None\n"
         "assert compiled.load('imud._no_such_kernel') is None\n"
+        "compiled.warn_missing()\n"
+        "compiled.warn_missing()\n"
         "print(compiled.missing())\n"
     )
     env = {k: v for k, v in os.environ.items() if k != compiled.PURE_ENV}
@@ -66,8 +71,8 @@ def test_a_missing_kernel_falls_back_and_is_reported() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env
     )
     assert out.stdout.strip() == "['imud._no_such_kernel']"
-    # the process says so, once however many modules ask, and the fix
-    assert out.stderr.count("imud._no_such_kernel not built") == 1
+    # the process says so when asked (a device about to stream asks), once, and the fix
+    assert out.stderr.count("compiled kernels not built: imud._no_such_kernel.") == 1
     assert "build-essential" in out.stderr
     code = (
         "from imud import compiled, timestamps\n"
