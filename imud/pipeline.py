@@ -103,7 +103,7 @@ def to_si(raw: RawBatch) -> dict[Channel, F64]:
     out: dict[Channel, F64] = {}
     for ch, rc in raw.channels.items():
         if rc.scale != 1.0:
-            si = rc.data.astype(np.float64) * rc.scale  # (cheaper than multiply(dtype=))
+            si = rc.data.astype(np.float64) * rc.scale
         elif rc.invalid is not None:
             si = rc.data.astype(np.float64)  # a copy: NaN goes in below
         else:

@@ -397,12 +397,13 @@ class OrientationFilter:
             self._chunk_numpy(gyro, accel, dt, q_out)
             return
         iv = self._iv
+        f8 = np.float64  # (the kernel reads float64s: a no-op for them, a copy of anything else)
         w, x, y, z, kn, k = _kernels.orient_chunk(
-            np.ascontiguousarray(gyro),
-            np.ascontiguousarray(self.b, dtype=np.float64),
+            np.ascontiguousarray(gyro, dtype=f8),
+            np.ascontiguousarray(self.b, dtype=f8),
             dt,
-            self.q,
-            None if accel is None else np.ascontiguousarray(accel),
+            np.ascontiguousarray(self.q, dtype=f8),
+            None if accel is None else np.ascontiguousarray(accel, dtype=f8),
             float(iv.steps),
             q_out,
             iv.qq,
