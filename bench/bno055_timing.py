@@ -1,7 +1,8 @@
 """How well the BNO055 driver counts and stamps samples, against the simulator's own sample
 instants: a simulated BNO055 on I2C or behind a real pty at 115200 baud, driven by the real
 driver and device runner at real time in this process, with each sample's index written into
-its (unpublished) Euler heading register so every published sample says which one it is.
+its accelerometer's x register (the first word of a full read and of a probe) so every
+published sample says which one it is.
 
     .venv/bin/python bench/bno055_timing.py --transport uart --seconds 20
 
@@ -30,7 +31,10 @@ from imud.device import DeviceRunner
 from imud.sim.i2c import SimI2CBus
 from imud.wiring import connect
 
-HEADING = slice(0x1A, 0x1C)  # EUL_HEADING in the register page; offset 18 in the 0x08 burst
+# where each sample's index is written: ACC_DATA_X in the register page, the first word of the
+# 0x08 burst and of a probe (which delivers the motion sensors alone), so every delivered sample
+# says which one it is
+TAG = slice(0x08, 0x0A)
 
 
 def run(transport: str, seconds: float, seed: int) -> dict[str, Any]:
@@ -57,14 +61,14 @@ def run(transport: str, seconds: float, seed: int) -> dict[str, Any]:
         produced[0] += len(t_ns)
         tag = (produced[0] - 1) % 30000
         instants[tag] = (produced[0] - 1, int(t_ns[-1]))
-        sim.p0[HEADING] = tag.to_bytes(2, "little")  # type: ignore[attr-defined]
+        sim.p0[TAG] = tag.to_bytes(2, "little")  # type: ignore[attr-defined]
 
     sim._produce = tagged  # type: ignore[method-assign]
     tags: list[int] = []
     decode = driver._decode  # type: ignore[attr-defined]
 
     def record(body: bytes, timing: Any) -> Any:
-        tags.append(int.from_bytes(body[18:20], "little"))
+        tags.append(int.from_bytes(body[0:2], "little"))
         return decode(body, timing)
 
     driver._decode = record  # type: ignore[attr-defined]

@@ -106,6 +106,13 @@ def config_plan(cfg: Bno055Config) -> list[RegisterSetting]:
     ]
 
 
+def _alike(a: bytes, b: bytes) -> bool:
+    """The same sample, as far as the shorter of the two reads tells (a probe reads the first
+    PROBE_LEN bytes of a full read's)."""
+    n = min(len(a), len(b))
+    return a[:n] == b[:n]
+
+
 @dataclass(frozen=True, slots=True)
 class Held:
     """A new sample read, with what its read said of it: its bracket and the grid's range of
@@ -181,6 +188,7 @@ class Bno055Driver:
         self.empty_reads = 0
         self.skipped_polls = 0
         self.invalid_quaternions = 0
+        self.partial_samples = 0  # delivered from a probe: the motion sensors alone
         self._save_phase = 0  # 1: going to CONFIG, 2: back to the operating mode
         self._save_due_ns = 0
         self._save_tried = False
@@ -372,7 +380,10 @@ class Bno055Driver:
 
     def _read_uart(self, t0: int) -> RawBatch:
         """A probe or a full read, as the poller says (uartpoll.py). A read is new to the grid
-        when its first PROBE_LEN bytes differ from the previous read's, probe or not."""
+        when its first PROBE_LEN bytes differ from the previous read's, probe or not. While the
+        phase is sought, probes come too fast for full reads in between, and most samples are
+        seen by a probe alone: what it read of one (the motion sensors) goes out, the rest
+        marked invalid, rather than the sample being lost."""
         assert self.uart is not None and self.poller is not None
         probe = self.poller.probe_now(self._held is not None)
         data = self._burst(PROBE_LEN if probe else R.DATA_BURST_LEN)
@@ -381,20 +392,7 @@ class Bno055Driver:
         self.poller.note(t0, tb, ta, probe)
         prefix = data[:PROBE_LEN]
         new, self._last_prefix = prefix != self._last_prefix, prefix
-        if not probe:
-            return self._take(data, t1, tb, ta, new)
-        empty = not any(prefix)
-        self.grid.observe(tb, ta, new=new and not empty)
-        if new and not empty:
-            self._last_new_ns = t1
-        else:
-            self._no_news(empty, t1)
-        m = self.grid.newest()
-        if m is not None and self.count.newest_delivered(self.grid.epoch, m):
-            return RawBatch(0, {}, FifoRead(tb, ta))  # the newest delivered is still the newest
-        # the chip has a sample not yet delivered: this read does not bound the newest
-        # delivered one's successor, so it says nothing of the clock's phase (`fifo_full`)
-        return RawBatch(0, {}, FifoRead(tb, ta, fifo_full=True))
+        return self._take(data, t1, tb, ta, new)
 
     def _no_news(self, empty: bool, t1: int) -> None:
         if empty and self._prev is not None:
@@ -405,27 +403,33 @@ class Bno055Driver:
             self._stale(t1)
 
     def _take(self, data: bytes, t1: int, tb: int, ta: int, new: bool) -> RawBatch:
-        """A full burst latched within [tb, ta]; `new`: its sample is not the previous read's.
+        """A burst latched within [tb, ta]: a full one, or a probe's first PROBE_LEN bytes;
+        `new`: its sample is not the previous read's.
 
         A new sample whose index the grid cannot pin (the read straddled a sample's window) is
         held back, not delivered with a guessed count: the next read pins it (over a UART the
         poller places that read to; over I2C the next polls come within a period) and tells
-        which of its possible indices it had, by repeating it or not."""
-        stat = self.calib_stat = data[_DATA_BYTES]
-        self.calib = decode_calib(stat)
+        which of its possible indices it had, by repeating it or not. A probe's sample held
+        and then read whole goes out whole."""
+        stat = -1  # not read (a probe)
+        if len(data) > _DATA_BYTES:
+            stat = self.calib_stat = data[_DATA_BYTES]
+            self.calib = decode_calib(stat)
         body = data[:_DATA_BYTES]
         empty = not any(body[:44])  # no sample yet after a mode switch, or a chip back in CONFIG
         g = self.grid
         g.observe(tb, ta, new=new and not empty)
         held, m = self._held, g.newest()
-        if held is not None and body == held.body:  # the held sample again
+        if held is not None and _alike(body, held.body):  # the held sample again
             self.repeated_reads += 1
             if m is not None and held.epoch == g.epoch:
                 self._held = None
+                if len(body) > len(held.body):
+                    held = Held(body, stat, held.tb, held.ta, held.epoch, held.seen)
                 return self._deliver(held, (m, m))
             self._no_news(False, t1)
             return RawBatch(0, {}, FifoRead(tb, ta, fifo_full=True))
-        if empty or body == self._prev:
+        if empty or (self._prev is not None and _alike(body, self._prev)):
             if empty:
                 self.empty_reads += 1
             else:
@@ -451,11 +455,13 @@ class Bno055Driver:
         """A new sample out, its grid index one of `seen` (in its epoch)."""
         timing = self.count.next(s.tb, s.ta, self.timing, s.epoch, seen)
         self._prev = s.body
+        self.partial_samples += len(s.body) < _DATA_BYTES
         batch = self._decode(s.body, timing)
         if (
             self.cfg.save_offsets
             and self.fusion
             and not self._save_tried
+            and s.stat >= 0
             and s.stat & self.calib_mask == self.calib_mask
         ):
             self._begin_save()
@@ -482,27 +488,35 @@ class Bno055Driver:
             )
 
     def _decode(self, body: bytes, timing: FifoRead) -> RawBatch:
+        """A sample's bytes from 0x08: all of ACC ... TEMP, or a probe's ACC, MAG and GYR
+        alone (the other channels then marked invalid: one stream, one set of channels)."""
+        partial = len(body) < _DATA_BYTES
+        if partial:
+            body = body.ljust(_DATA_BYTES, b"\0")
         w = np.frombuffer(body, dtype="<i2", count=22).astype(np.int32).reshape(1, 22)
         temp = np.frombuffer(body, dtype=np.int8, count=1, offset=44).astype(np.float64)
         s = self.scale
+        unread = np.array([True]) if partial else None
         ch: dict[Channel, RawChannel] = {
             Channel.ACCEL: RawChannel(w[:, 0:3], s[Channel.ACCEL], ACCEL_FULL_SCALE),
             Channel.GYRO: RawChannel(w[:, 6:9], s[Channel.GYRO], self._gyro_full_scale()),
-            Channel.TEMPERATURE: RawChannel(temp, s[Channel.TEMPERATURE]),
+            Channel.TEMPERATURE: RawChannel(temp, s[Channel.TEMPERATURE], invalid=unread),
         }
         if Channel.MAG in s:
             ch[Channel.MAG] = RawChannel(w[:, 3:6], s[Channel.MAG])
         if self.fusion:
             q = w[:, 12:16]
-            norm = math.sqrt(float((q * q).sum())) * s[Channel.ORIENTATION]
-            bad = not QUAT_NORM_RANGE[0] <= norm <= QUAT_NORM_RANGE[1]
-            if bad:
-                self.invalid_quaternions += 1
-            ch[Channel.ORIENTATION] = RawChannel(
-                q, s[Channel.ORIENTATION], invalid=np.array([True]) if bad else None
+            bad = unread
+            if not partial:
+                norm = math.sqrt(float((q * q).sum())) * s[Channel.ORIENTATION]
+                if not QUAT_NORM_RANGE[0] <= norm <= QUAT_NORM_RANGE[1]:
+                    self.invalid_quaternions += 1
+                    bad = np.array([True])
+            ch[Channel.ORIENTATION] = RawChannel(q, s[Channel.ORIENTATION], invalid=bad)
+            ch[Channel.LINEAR_ACCEL] = RawChannel(
+                w[:, 16:19], s[Channel.LINEAR_ACCEL], invalid=unread
             )
-            ch[Channel.LINEAR_ACCEL] = RawChannel(w[:, 16:19], s[Channel.LINEAR_ACCEL])
-            ch[Channel.GRAVITY] = RawChannel(w[:, 19:22], s[Channel.GRAVITY])
+            ch[Channel.GRAVITY] = RawChannel(w[:, 19:22], s[Channel.GRAVITY], invalid=unread)
         return RawBatch(1, ch, timing)
 
     def _gyro_full_scale(self) -> float:
@@ -528,6 +542,7 @@ class Bno055Driver:
             "suspected_missed": self.count.suspected,
             "skipped_polls": self.skipped_polls,
             "invalid_quaternions": self.invalid_quaternions,
+            "partial_samples": self.partial_samples,
             "offsets_file": str(self.offsets_path),
             "offsets_restored": self.offsets_restored,
             "offsets": asdict(self.restored) if self.restored is not None else None,
