@@ -537,12 +537,14 @@ class Bno055Driver:
             "mode": self.cfg.mode,
             "calibration": c,
             "fully_calibrated": None if c is None else self.calib_stat & m == m,
+            # published from a probe while the phase was sought: motion sensors only, the
+            # rest invalid (they are the device's invalid samples at start-up)
+            "partial_samples": self.partial_samples,
             "repeated_reads": self.repeated_reads,
             "empty_reads": self.empty_reads,
             "suspected_missed": self.count.suspected,
             "skipped_polls": self.skipped_polls,
             "invalid_quaternions": self.invalid_quaternions,
-            "partial_samples": self.partial_samples,
             "offsets_file": str(self.offsets_path),
             "offsets_restored": self.offsets_restored,
             "offsets": asdict(self.restored) if self.restored is not None else None,
