@@ -98,12 +98,14 @@ def run_case(
     loop(clock.now_ns() + 5_000_000_000, stop_when_running=True)
     assert runner.state == DeviceState.RUNNING, runner.last_error
     loop(clock.now_ns() + 500_000_000)  # the rate estimate gets its baseline
+    runner.emitter.flush()  # what the emitter holds to publish together (emit.MERGE_NS) counts
     st0 = dict(driver.chip_status())
     s0, l0, i0 = runner.samples, runner.lost_samples, runner.invalid_samples
     out0 = sim.outputs_produced  # type: ignore[union-attr]
     c0, t0 = time.process_time(), time.monotonic()
     loop(clock.now_ns() + int(seconds * 1e9))
     cpu, wall = time.process_time() - c0, time.monotonic() - t0
+    runner.emitter.flush()
     st = driver.chip_status()
     overruns = st["diag_stat_counts"].get("datapath_overrun", 0)
     overruns -= st0["diag_stat_counts"].get("datapath_overrun", 0)
