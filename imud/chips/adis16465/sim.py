@@ -29,7 +29,7 @@ from __future__ import annotations
 import bisect
 import math
 import struct
-from collections.abc import Sequence
+from collections.abc import Generator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -86,7 +86,12 @@ _NINE = struct.Struct(">9H")
 
 
 BLOCK = 128  # internal samples made per NumPy pass, ahead of time (64 ms)
-AHEAD_LEFT = 2  # outputs of the current block still to latch when the next one is made
+# outputs of the current block still to latch when the next one is begun: it is made in
+# BLOCK_STAGES parts, one at the end of each sample's reads (`_make_ahead`)
+AHEAD_LEFT = 8
+BLOCK_STAGES = 5
+
+
 # output registers -> column of an output sample's words: gyro and accel _LOW/_OUT (0x04 ...
 # 0x1A), the deltas' (0x24 ... 0x3A), TEMP_OUT
 _COL = {
@@ -128,6 +133,19 @@ def figures(model: int) -> ChipFigures:
         accel_temp_drift_mg_per_c=0.005,
         gyro_temp_drift_dps_per_c=0.0005,
     )
+
+
+Stages = Generator[None, None, _Block]
+
+
+def _finish(stages: Stages) -> _Block:
+    """What a block's remaining stages make, run all at once."""
+    while True:
+        try:
+            next(stages)
+        except StopIteration as done:
+            block: _Block = done.value
+            return block
 
 
 class Adis16465Sim(SampledChip):
@@ -196,7 +214,8 @@ class Adis16465Sim(SampledChip):
         self._hist: F64 | None = None  # the Bartlett filter's last inputs (taps - 1, 6)
         self._block = _Block.empty()
         self._oi = 0  # the block's next output not yet due
-        self._ahead: _Block | None = None  # the block after it, made at the end of a read
+        self._ahead: _Block | None = None  # the block after it, made at the end of reads
+        self._making: Stages | None = None  # ... while it is being made, a stage a read
         self._words_read = 0  # output registers read by frame since the last burst
 
     def _wake(self) -> None:
@@ -237,21 +256,34 @@ class Adis16465Sim(SampledChip):
                 self._latch(self._oi, end)
                 if end < len(ks):
                     return
-            self._block, self._ahead = self._ahead or self._make_block(), None
+            ahead = self._ahead or (_finish(self._making) if self._making else self._make_block())
+            self._block, self._ahead, self._making = ahead, None, None
             self._oi = 0
 
     def _make_ahead(self) -> None:
-        """Make the next block once this one is nearly latched, at the end of a sample's reads.
+        """Make the next block once this one is nearly latched, a stage at the end of each
+        sample's reads.
 
-        Making a block takes a good part of a period at 2 kHz (more with a cold cache), host
-        time silicon does not take. Inside the DATA_CNTR poll that begins a sample's read it
-        would delay the burst after it past the next latch and lose the polled sample; between
-        a burst and the delta words after it, it would let the next sample overtake them. So
-        it is done where a reader has the most slack: once the sample's last word is answered,
-        which is the burst for a reader that reads nothing after it, and the DATA_CNTR
-        re-check for one that reads words after the burst (`_words_read`)."""
-        if self._ahead is None and self.sampling and len(self._block.k) - self._oi <= AHEAD_LEFT:
-            self._ahead = self._make_block()
+        Making a block takes more than a period at 2 kHz with a cold cache (0.5-0.6 ms
+        measured in the bus worker), host time silicon does not take. Inside the DATA_CNTR poll
+        that begins a sample's read it would delay the burst after it past the next latch and
+        lose the polled sample; between a burst and the delta words after it, it would let the
+        next sample overtake them. So it is done where a reader has the most slack: once the
+        sample's last word is answered, which is the burst for a reader that reads nothing
+        after it, and the DATA_CNTR re-check for one that reads words after the burst
+        (`_words_read`). Made whole even there, it still left the reader's next poll late by
+        its own length often enough to lose a sample a second: made in BLOCK_STAGES parts over
+        as many reads, no read waits for more than a part."""
+        if self._ahead is not None or not self.sampling:
+            return
+        if self._making is None:
+            if len(self._block.k) - self._oi > AHEAD_LEFT:
+                return
+            self._making = self._block_stages()
+        try:
+            next(self._making)
+        except StopIteration as done:
+            self._ahead, self._making = done.value, None
 
     @property
     def filt(self) -> int:
@@ -263,36 +295,48 @@ class Adis16465Sim(SampledChip):
         the DEC_RATE average's (D - 1) / 2 (both linear phase: their lengths say it)."""
         return (1 << self.filt) - 1 + (self.dec - 1) / 2
 
-    def _measure(self, k: F64) -> tuple[npt.NDArray[np.int64], F64, F64, F64, F64]:
+    def _measure_stages(
+        self, k: F64
+    ) -> Generator[None, None, tuple[npt.NDArray[np.int64], F64, F64, F64, F64]]:
         """Internal samples k before the digital filters: their instants (ns), temperature,
-        true specific force and rate, and measured gyro and accel (n, 6) with the noise."""
+        true specific force and rate, and measured gyro and accel (n, 6) with the noise; in
+        three stages (the motion, the gyro, the accel)."""
         t_ns = np.floor(self.grid_origin_ns + k * (1e9 / self.rate_hz)).astype(np.int64)
         t_s = (t_ns - self.t_origin_ns) / 1e9
         f, w = self.motion.sample(t_s)
         temp = self.temp.at(t_s)
+        yield
         e, rng, n = self.errors, self.errors.noise_rng, k.shape[0]
         wm = e.gyro.deterministic(t_s, w, temp)
         wm += self._noise[0].draw(rng, e.gyro.noise, self.rate_hz, n)
+        yield
         fm = e.accel.deterministic(t_s, f, temp)
         fm += self._noise[1].draw(rng, e.accel.noise, self.rate_hz, n)
         return t_ns, temp, f, w, np.concatenate([wm, fm], axis=1)
 
     def _make_block(self) -> _Block:
+        """The next block, made whole (a reader late for it, or none reading)."""
+        return _finish(self._block_stages())
+
+    def _block_stages(self) -> Stages:
         """The next internal samples (at least BLOCK, and enough for one output), measured,
         through the Bartlett window, and true, into output samples: their mean, and the
         trapezoid sums of the deltas. The truth is the motion the outputs stand for: the
         window's 2^B - 1 samples back, the mean over the same D samples, stamped at the latch
-        less the group delay (so a stamp minus the truth's is the stamp's error)."""
+        less the group delay (so a stamp minus the truth's is the stamp's error). In
+        BLOCK_STAGES stages, each ending at a `yield`; the block is the generator's value."""
         D = self.dec
         n = max(BLOCK, D - self._n_acc)
         k = np.arange(self.next_k, self.next_k + n, dtype=np.float64)
         self.next_k += n
-        t_ns, temp, f, w, raw = self._measure(k)
+        t_ns, temp, f, w, raw = yield from self._measure_stages(k)
+        yield
         taps = bartlett(self.filt)
         back = taps.shape[0] - 1  # inputs the window needs before the block
         if back:
             if self._hist is None or self._hist.shape[0] != back:
-                self._hist = self._measure(k[0] - back + np.arange(back, dtype=np.float64))[4]
+                past = k[0] - back + np.arange(back, dtype=np.float64)
+                self._hist = (yield from self._measure_stages(past))[4]
             full = np.concatenate([self._hist, raw])
             self._hist = full[full.shape[0] - back :]
             raw = np.stack([np.convolve(full[:, c], taps, mode="valid") for c in range(6)], 1)
@@ -314,6 +358,7 @@ class Adis16465Sim(SampledChip):
         self._sum, self._trap = cx[-1] - cx[last], ct[-1] - ct[last]
         self._n_acc = n - 1 - last
         mean = sums / D
+        yield
         truth = {
             Channel.ACCEL: mean[:, 9:12],
             Channel.GYRO: mean[:, 6:9],
