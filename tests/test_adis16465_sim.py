@@ -404,3 +404,30 @@ def test_the_simulators_own_work_does_not_cost_the_driver_a_sample(
     assert rig.runner.samples > 0.97 * 2.0 * 2000 / (dec_rate + 1)
     assert rig.runner.lost_samples == lost
     assert rig.driver.overtaken == overtaken
+
+
+@pytest.mark.parametrize(("dec_rate", "deltas", "filt"), [(0, False, 0), (1, True, 3)])
+def test_a_block_made_in_parts_is_the_block_made_whole(
+    dec_rate: int, deltas: bool, filt: int
+) -> None:
+    """Spreading a block's making over reads changes when the work is done, not what it makes:
+    the noise is drawn in the same order, so the published samples are the same bytes as with
+    every block made whole."""
+    noisy = {"seed": 5, "clock_error": 0.01, "errors": {"ideal": False}}
+    runs = []
+    for parts in (True, False):
+        rig = _rig(noisy, model=1, dec_rate=dec_rate, deltas=deltas, filt_ctrl=filt)
+        if not parts:
+            sim = rig.sim
+
+            def whole(sim: Any = sim) -> None:
+                if sim._ahead is None and sim.sampling and len(sim._block.k) - sim._oi <= 8:
+                    sim._ahead = sim._make_block()
+
+            sim._make_ahead = whole  # type: ignore[method-assign]
+        rig.run(1.0)
+        runs.append(_cat(rig))
+    parted, whole_ = runs
+    assert parted.keys() == whole_.keys()
+    for key in parted:
+        np.testing.assert_array_equal(parted[key], whole_[key], err_msg=key)
