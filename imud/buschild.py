@@ -168,5 +168,9 @@ def child_main(sock: socket.socket, spec: dict[str, Any]) -> None:
     signal.signal(signal.SIGTERM, lambda *_: worker.stop.set())
     gc.collect()
     gc.freeze()  # see Daemon.run: no long collections on the acquisition path
-    sys.setswitchinterval(0.0005)
+    # the worker runs at real-time priority, but another thread holding the GIL (the status
+    # report, 5 a second) keeps it waiting until the interpreter's switch interval is up: a
+    # chip without a FIFO at 2 kHz has about 0.45 ms to be read in, so the interval is far
+    # below that (0.5 ms here lost twice the samples of 0.1 ms: docs/performance.md)
+    sys.setswitchinterval(0.0001)
     serve(sock, worker)
