@@ -496,6 +496,363 @@ done:
     return result;
 }
 
+/* --- the orientation filter's correction (orient.kalman, each function's NumPy twin) --- */
+
+#define NS 8 /* error states: world rotation 3, gyro bias 3, horizontal linear acceleration 2 */
+
+/* The rotation-matrix sum (3 x 3, row-major) from a sum of q outer q read with `stride`
+ * doubles between its 16 entries (kalman.FORM: off-diagonal products taken from both halves). */
+static void rot_from_qq(const double *e, int stride, double r[9]) {
+#define E(a, b) e[stride * (4 * (a) + (b))]
+    const double ww = E(0, 0), xx = E(1, 1), yy = E(2, 2), zz = E(3, 3);
+    const double xy = E(1, 2) + E(2, 1), wz = E(0, 3) + E(3, 0), xz = E(1, 3) + E(3, 1);
+    const double wy = E(0, 2) + E(2, 0), yz = E(2, 3) + E(3, 2), wx = E(0, 1) + E(1, 0);
+#undef E
+    r[0] = ww + xx - yy - zz;
+    r[1] = xy - wz;
+    r[2] = xz + wy;
+    r[3] = xy + wz;
+    r[4] = ww - xx + yy - zz;
+    r[5] = yz - wx;
+    r[6] = xz - wy;
+    r[7] = yz + wx;
+    r[8] = ww - xx - yy + zz;
+}
+
+/* Buffers of float64s of the given sizes (in doubles); raises ValueError naming `what`. */
+static int get_doubles(PyObject *const *objs, Py_buffer *views, const Py_ssize_t *sizes,
+                       const int *writable, int count, const char *what) {
+    for (int i = 0; i < count; i++) {
+        if (!get_buffer(objs[i], &views[i], 0, writable[i], what)) {
+            while (i-- > 0)
+                PyBuffer_Release(&views[i]);
+            return 0;
+        }
+        const Py_ssize_t need = sizes[i] * (Py_ssize_t)sizeof(double);
+        if (views[i].len != need) {
+            PyErr_Format(PyExc_ValueError, "%s: argument %d holds %zd bytes, need %zd", what,
+                         i, views[i].len, need);
+            for (int j = i; j >= 0; j--)
+                PyBuffer_Release(&views[j]);
+            return 0;
+        }
+    }
+    return 1;
+}
+
+static void release_all(Py_buffer *views, int count) {
+    while (count-- > 0)
+        PyBuffer_Release(&views[count]);
+}
+
+/* orient_sums(qq, qqa, kqqa, out): out (15) = the rotation sum from qq, then the rotated
+ * specific force's sums from qqa and kqqa (16 x 3 each). kalman.interval_sums. */
+static PyObject *orient_sums(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 4) {
+        PyErr_SetString(PyExc_TypeError, "orient_sums() takes 4 arguments");
+        return NULL;
+    }
+    Py_buffer v[4];
+    const Py_ssize_t sizes[4] = {16, 48, 48, 15};
+    const int wr[4] = {0, 0, 0, 1};
+    if (!get_doubles(args, v, sizes, wr, 4, "orient_sums"))
+        return NULL;
+    const double *qq = v[0].buf, *qqa = v[1].buf, *kqqa = v[2].buf;
+    double *out = v[3].buf;
+    rot_from_qq(qq, 1, out);
+    for (int s = 0; s < 2; s++) {
+        const double *src = s ? kqqa : qqa;
+        double *dst = out + 9 + 3 * s;
+        dst[0] = dst[1] = dst[2] = 0.0;
+        for (int j = 0; j < 3; j++) {
+            double r[9];
+            rot_from_qq(src + j, 3, r);
+            for (int i = 0; i < 3; i++)
+                dst[i] += r[3 * i + j];
+        }
+    }
+    release_all(v, 4);
+    Py_RETURN_NONE;
+}
+
+/* orient_propagate(p, turn, rho, q_density, t, linear_var): p = phi p phi^T + Q in place, phi
+ * the identity with -turn in the rotation-bias block and rho on the linear acceleration's
+ * diagonal. kalman.propagate. */
+static PyObject *orient_propagate(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 6) {
+        PyErr_SetString(PyExc_TypeError, "orient_propagate() takes 6 arguments");
+        return NULL;
+    }
+    const double rho = PyFloat_AsDouble(args[2]);
+    const double t = PyFloat_AsDouble(args[4]);
+    const double lvar = PyFloat_AsDouble(args[5]);
+    if (PyErr_Occurred())
+        return NULL;
+    Py_buffer v[3];
+    PyObject *objs[3] = {args[0], args[1], args[3]};
+    const Py_ssize_t sizes[3] = {NS * NS, 9, NS};
+    const int wr[3] = {1, 0, 0};
+    if (!get_doubles(objs, v, sizes, wr, 3, "orient_propagate"))
+        return NULL;
+    double *p = v[0].buf;
+    const double *turn = v[1].buf, *qd = v[2].buf;
+    double phi[NS][NS] = {{0}}, tmp[NS][NS];
+    for (int i = 0; i < NS; i++)
+        phi[i][i] = 1.0;
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            phi[i][3 + j] = -turn[3 * i + j];
+    phi[6][6] = phi[7][7] = rho;
+    for (int i = 0; i < NS; i++)
+        for (int j = 0; j < NS; j++) {
+            double acc = 0.0;
+            for (int k = 0; k < NS; k++)
+                acc += phi[i][k] * p[NS * k + j];
+            tmp[i][j] = acc;
+        }
+    for (int i = 0; i < NS; i++)
+        for (int j = 0; j < NS; j++) {
+            double acc = 0.0;
+            for (int k = 0; k < NS; k++)
+                acc += tmp[i][k] * phi[j][k];
+            p[NS * i + j] = acc;
+        }
+    for (int i = 0; i < 6; i++)
+        p[NS * i + i] += qd[i] * t;
+    const double ql = lvar * (1.0 - rho * rho);
+    p[NS * 6 + 6] += ql;
+    p[NS * 7 + 7] += ql;
+    release_all(v, 3);
+    Py_RETURN_NONE;
+}
+
+/* orient_gravity_h(p, turn, g, h) -> trace(h p h^T): gravity's measurement matrix (2 x 8) into
+ * h. kalman.gravity_h. */
+static PyObject *orient_gravity_h(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 4) {
+        PyErr_SetString(PyExc_TypeError, "orient_gravity_h() takes 4 arguments");
+        return NULL;
+    }
+    const double g = PyFloat_AsDouble(args[2]);
+    if (PyErr_Occurred())
+        return NULL;
+    Py_buffer v[3];
+    PyObject *objs[3] = {args[0], args[1], args[3]};
+    const Py_ssize_t sizes[3] = {NS * NS, 9, 2 * NS};
+    const int wr[3] = {0, 0, 1};
+    if (!get_doubles(objs, v, sizes, wr, 3, "orient_gravity_h"))
+        return NULL;
+    const double *p = v[0].buf, *turn = v[1].buf;
+    double *h = v[2].buf;
+    memset(h, 0, 2 * NS * sizeof(double));
+    /* gm = [[0, -g, 0], [g, 0, 0]]: gm x = (-g x1, g x0) */
+    h[1] = -g;
+    h[NS + 0] = g;
+    for (int j = 0; j < 3; j++) {
+        h[3 + j] = -g * turn[3 + j];
+        h[NS + 3 + j] = g * turn[j];
+    }
+    h[6] = 1.0;
+    h[NS + 7] = 1.0;
+    double trace = 0.0;
+    for (int r = 0; r < 2; r++) {
+        const double *hr = h + NS * r;
+        for (int i = 0; i < NS; i++) {
+            double acc = 0.0;
+            for (int k = 0; k < NS; k++)
+                acc += p[NS * i + k] * hr[k];
+            trace += hr[i] * acc;
+        }
+    }
+    release_all(v, 3);
+    return PyFloat_FromDouble(trace);
+}
+
+/* The inverse of a d x d (d <= 3) symmetric positive matrix; 0 if singular (kalman.inverse:
+ * closed form, positive determinant, up to 2 x 2; a nonzero one for 3 x 3). */
+static int small_inverse(int d, const double s[3][3], double inv[3][3]) {
+    if (d == 1) {
+        if (!(s[0][0] > 0))
+            return 0;
+        inv[0][0] = 1.0 / s[0][0];
+        return 1;
+    }
+    if (d == 2) {
+        const double det = s[0][0] * s[1][1] - s[0][1] * s[1][0];
+        if (!(det > 0))
+            return 0;
+        inv[0][0] = s[1][1] / det;
+        inv[0][1] = -s[0][1] / det;
+        inv[1][0] = -s[1][0] / det;
+        inv[1][1] = s[0][0] / det;
+        return 1;
+    }
+    double c[3][3];
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) {
+            const int i1 = (i + 1) % 3, i2 = (i + 2) % 3, j1 = (j + 1) % 3, j2 = (j + 2) % 3;
+            c[i][j] = s[i1][j1] * s[i2][j2] - s[i1][j2] * s[i2][j1];
+        }
+    const double det = s[0][0] * c[0][0] + s[0][1] * c[0][1] + s[0][2] * c[0][2];
+    if (!(det != 0.0) || !isfinite(det))
+        return 0;
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            inv[i][j] = c[j][i] / det;
+    return 1;
+}
+
+/* orient_update(p, h, y, r, gate, learn, consistent, up, keep_heading, dx) -> accepted
+ *
+ * kalman.update: a gated Kalman update of p (8 x 8, in place) by y (d <= 3) through h (d x 8)
+ * with noise r (d x d); the correction into dx (8). learn: 0 all, 1 the bias across the body's
+ * vertical `up`, 2 along it, 3 no bias, 4 all if the normalised innovation is within
+ * `consistent` else no bias. Below "all" the gain of what is left out is zero (and the
+ * heading's too with keep_heading) and the covariance takes Joseph's form. */
+static PyObject *orient_update(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 10) {
+        PyErr_SetString(PyExc_TypeError, "orient_update() takes 10 arguments");
+        return NULL;
+    }
+    const double gate = PyFloat_AsDouble(args[4]);
+    long learn = PyLong_AsLong(args[5]);
+    const double consistent = PyFloat_AsDouble(args[6]);
+    const int keep_heading = PyObject_IsTrue(args[8]);
+    if (PyErr_Occurred() || keep_heading < 0)
+        return NULL;
+    Py_buffer yb;
+    if (!get_buffer(args[2], &yb, 0, 0, "orient_update y"))
+        return NULL;
+    const int d = (int)(yb.len / (Py_ssize_t)sizeof(double));
+    PyBuffer_Release(&yb);
+    if (d < 1 || d > 3) {
+        PyErr_SetString(PyExc_ValueError, "orient_update: an innovation of 1 to 3 values");
+        return NULL;
+    }
+    const int has_up = args[7] != Py_None;
+    if ((learn == 1 || learn == 2) && !has_up) {
+        PyErr_SetString(PyExc_ValueError, "orient_update: learning along the vertical needs up");
+        return NULL;
+    }
+    Py_buffer v[6];
+    PyObject *objs[6] = {args[0], args[1], args[2], args[3], args[9], args[7]};
+    const Py_ssize_t sizes[6] = {NS * NS, d * NS, d, d * d, NS, 3};
+    const int wr[6] = {1, 0, 0, 0, 1, 0};
+    const int count = has_up ? 6 : 5;
+    if (!get_doubles(objs, v, sizes, wr, count, "orient_update"))
+        return NULL;
+    double *p = v[0].buf, *dx = v[4].buf;
+    const double *h = v[1].buf, *y = v[2].buf, *r = v[3].buf;
+    const double *up = has_up ? v[5].buf : NULL;
+    double ph[NS][3], s[3][3], si[3][3], k[NS][3];
+    for (int i = 0; i < NS; i++)
+        for (int j = 0; j < d; j++) {
+            double acc = 0.0;
+            for (int m = 0; m < NS; m++)
+                acc += p[NS * i + m] * h[NS * j + m];
+            ph[i][j] = acc;
+        }
+    for (int i = 0; i < d; i++)
+        for (int j = 0; j < d; j++) {
+            double acc = 0.0;
+            for (int m = 0; m < NS; m++)
+                acc += h[NS * i + m] * ph[m][j];
+            s[i][j] = acc + r[d * i + j];
+        }
+    int ok = small_inverse(d, s, si);
+    double nis = 0.0;
+    if (ok) {
+        for (int i = 0; i < d; i++)
+            for (int j = 0; j < d; j++)
+                nis += y[i] * si[i][j] * y[j];
+        ok = nis <= gate;
+    }
+    if (ok) {
+        for (int i = 0; i < NS; i++)
+            for (int j = 0; j < d; j++) {
+                double acc = 0.0;
+                for (int m = 0; m < d; m++)
+                    acc += ph[i][m] * si[m][j];
+                k[i][j] = acc;
+            }
+        if (learn == 4)
+            learn = nis <= consistent ? 0 : 3;
+        double np_[NS][NS];
+        if (learn == 0) {
+            for (int i = 0; i < NS; i++)
+                for (int j = 0; j < NS; j++) {
+                    double acc = 0.0;
+                    for (int m = 0; m < d; m++)
+                        acc += k[i][m] * ph[j][m];
+                    np_[i][j] = p[NS * i + j] - acc;
+                }
+        } else {
+            if (learn == 3) {
+                for (int i = 3; i < 6; i++)
+                    for (int j = 0; j < d; j++)
+                        k[i][j] = 0.0;
+            } else {
+                for (int j = 0; j < d; j++) {
+                    const double w = up[0] * k[3][j] + up[1] * k[4][j] + up[2] * k[5][j];
+                    for (int i = 0; i < 3; i++) {
+                        const double along = up[i] * w;
+                        k[3 + i][j] = learn == 2 ? along : k[3 + i][j] - along;
+                    }
+                }
+            }
+            if (keep_heading)
+                for (int j = 0; j < d; j++)
+                    k[2][j] = 0.0;
+            double ikh[NS][NS], t1[NS][NS], kr[NS][3];
+            for (int i = 0; i < NS; i++)
+                for (int j = 0; j < NS; j++) {
+                    double acc = 0.0;
+                    for (int m = 0; m < d; m++)
+                        acc += k[i][m] * h[NS * m + j];
+                    ikh[i][j] = (i == j ? 1.0 : 0.0) - acc;
+                }
+            for (int i = 0; i < NS; i++)
+                for (int j = 0; j < NS; j++) {
+                    double acc = 0.0;
+                    for (int m = 0; m < NS; m++)
+                        acc += ikh[i][m] * p[NS * m + j];
+                    t1[i][j] = acc;
+                }
+            for (int i = 0; i < NS; i++)
+                for (int j = 0; j < d; j++) {
+                    double acc = 0.0;
+                    for (int m = 0; m < d; m++)
+                        acc += k[i][m] * r[d * m + j];
+                    kr[i][j] = acc;
+                }
+            for (int i = 0; i < NS; i++)
+                for (int j = 0; j < NS; j++) {
+                    double acc = 0.0, acc2 = 0.0;
+                    for (int m = 0; m < NS; m++)
+                        acc += t1[i][m] * ikh[j][m];
+                    for (int m = 0; m < d; m++)
+                        acc2 += kr[i][m] * k[j][m];
+                    np_[i][j] = acc + acc2;
+                }
+        }
+        for (int i = 0; i < NS; i++) {
+            double acc = 0.0;
+            for (int m = 0; m < d; m++)
+                acc += k[i][m] * y[m];
+            dx[i] = acc;
+        }
+        for (int i = 0; i < NS; i++)
+            for (int j = 0; j < NS; j++)
+                p[NS * i + j] = 0.5 * (np_[i][j] + np_[j][i]);
+    }
+    release_all(v, count);
+    return PyBool_FromLong(ok);
+}
+
 static PyMethodDef methods[] = {
     {"stamps", (PyCFunction)(void (*)(void))stamps, METH_FASTCALL,
      "Stamps on the fitted line, steered and rounded (SampleClock.update's tail)."},
@@ -509,6 +866,14 @@ static PyMethodDef methods[] = {
      "A wire batch's stamps, flags and float32 channels after its header."},
     {"orient_chunk", (PyCFunction)(void (*)(void))orient_chunk, METH_FASTCALL,
      "The orientation filter's integration of one chunk of gyro samples."},
+    {"orient_sums", (PyCFunction)(void (*)(void))orient_sums, METH_FASTCALL,
+     "An interval's rotation sum and rotated specific-force sums (orient.kalman)."},
+    {"orient_propagate", (PyCFunction)(void (*)(void))orient_propagate, METH_FASTCALL,
+     "The orientation covariance over an interval, in place (orient.kalman)."},
+    {"orient_gravity_h", (PyCFunction)(void (*)(void))orient_gravity_h, METH_FASTCALL,
+     "Gravity's measurement matrix and the trace of h P h^T (orient.kalman)."},
+    {"orient_update", (PyCFunction)(void (*)(void))orient_update, METH_FASTCALL,
+     "A gated, Schmidt-capable Kalman update of the orientation covariance (orient.kalman)."},
     {"reaches", (PyCFunction)(void (*)(void))reaches, METH_FASTCALL,
      "Whether any int32 count is at or beyond +-full_scale."},
     {NULL, NULL, 0, NULL},

@@ -26,7 +26,7 @@ from imud.chips.bmi088 import decode as bmi
 from imud.chips.bmi088 import registers as bmi_r
 from imud.chips.icm42688p import driver as icm
 from imud.chips.icm42688p import registers as icm_r
-from imud.orient import ekf
+from imud.orient import ekf, kalman
 from tests.helpers import make_rig
 
 KERNELS = ["imud._kernels", "imud.chips.icm42688p._fifo", "imud.chips.bmi088._fifo"]
@@ -528,6 +528,138 @@ def test_orient_chunk_matches_numpy(
     assert fast[5] == slow[5]
 
 
+# --- the orientation filter's correction ---------------------------------------------------------
+
+
+def _both(fn: Any, *args: Any) -> tuple[Any, Any, list[np.ndarray], list[np.ndarray]]:
+    """`fn(*args)` with the kernels and with the NumPy twins, each on its own copies of the
+    arrays: (kernel result, twin result, kernel's arrays after, twin's arrays after)."""
+    runs = []
+    saved = kalman._kernels
+    for k in (saved, None):
+        copies = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
+        kalman._kernels = k
+        try:
+            out = fn(*copies)
+        finally:
+            kalman._kernels = saved
+        runs.append((out, [a for a in copies if isinstance(a, np.ndarray)]))
+    return runs[0][0], runs[1][0], runs[0][1], runs[1][1]
+
+
+def _close(a: np.ndarray, b: np.ndarray) -> None:
+    np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-13 * max(1.0, float(np.abs(b).max())))
+
+
+def _spd(rng: np.random.Generator, n: int) -> np.ndarray:
+    """A covariance-like matrix: positive definite, entries spread over decades."""
+    a = rng.normal(size=(n, n)) * np.exp(rng.uniform(-8.0, 0.0, size=n))[:, None]
+    out: np.ndarray = a @ a.T + np.diag(np.exp(rng.uniform(-14.0, -4.0, size=n)))
+    return out
+
+
+@FUZZ
+@given(st.integers(0, 2**32 - 1))
+def test_orient_sums_and_propagation_match_numpy(seed: int) -> None:
+    """An interval's sums (from the chunks' q outer q and its products with the specific force)
+    and the covariance's propagation over it: the kernel and NumPy agree to rounding."""
+    _kernel("imud._kernels")
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(50, 4))
+    q /= np.linalg.norm(q, axis=1)[:, None]
+    q2 = (q[:, :, None] * q[:, None, :]).reshape(50, 16)
+    a = rng.normal(0.0, 3.0, size=(50, 3))
+    qq, qqa, kqqa = q2.sum(axis=0), q2.T @ a, q2.T @ (a * np.arange(50)[:, None])
+    fast, slow, _, _ = _both(kalman.interval_sums, qq, qqa, kqqa)
+    _close(fast, slow)
+    # the rotation sum is what the quaternions' matrices add up to (an independent check)
+    w, x, y, z = q.T
+    r00 = (w * w + x * x - y * y - z * z).sum()
+    r12 = (2 * (y * z - w * x)).sum()
+    assert fast[0] == pytest.approx(r00, rel=1e-12, abs=1e-12)
+    assert fast[5] == pytest.approx(r12, rel=1e-12, abs=1e-12)
+
+    p = _spd(rng, 8)
+    turn = rng.normal(size=9) * 0.05
+    density = np.exp(rng.uniform(-20.0, -8.0, size=8))
+    rho, t, lvar = float(rng.uniform(0.5, 1.0)), float(rng.uniform(0.01, 0.5)), 0.01
+    _, _, (pf, *_), (ps, *_) = _both(kalman.propagate, p, turn, rho, density, t, lvar)
+    _close(pf, ps)
+
+
+@FUZZ
+@given(
+    st.integers(0, 2**32 - 1),
+    st.sampled_from(list(kalman.Learn)),
+    st.integers(1, 3),
+    st.booleans(),
+    st.floats(0.01, 30.0),
+)
+def test_orient_update_matches_numpy(
+    seed: int, learn: kalman.Learn, d: int, keep_heading: bool, gate: float
+) -> None:
+    """Gravity's measurement matrix and a gated update, accepted or rejected, with every way of
+    learning less than all: the kernel and NumPy agree to rounding, and a rejected update
+    changes nothing."""
+    _kernel("imud._kernels")
+    rng = np.random.default_rng(seed)
+    p = _spd(rng, 8)
+    turn = rng.normal(size=9) * 0.05
+    h2 = np.empty((2, 8))
+    fast, slow, (_, _, hf), (_, _, hs) = _both(kalman.gravity_h, p, turn, 9.81, h2)
+    _close(hf, hs)
+    assert fast == pytest.approx(slow, rel=1e-12)
+    h = hs if d == 2 else rng.normal(size=(d, 8))
+    s = h @ p @ h.T
+    r = np.diag(np.exp(rng.uniform(-3.0, 1.0, size=d)) * float(np.trace(s)) / d)
+    y = rng.normal(size=d) * np.sqrt(np.diag(s + r)) * rng.uniform(0.5, 3.0)
+    up = rng.normal(size=3)
+    up /= np.linalg.norm(up)
+    dx = np.full(8, 7.0)
+    args = (p, h, y, r, gate, learn, 5.991, up, keep_heading, dx)
+    fast, slow, (pf, *_, dxf), (ps, *_, dxs) = _both(kalman.update, *args)
+    assert fast == slow
+    _close(pf, ps)
+    _close(dxf, dxs)
+    if not fast:
+        assert (pf == p).all() and (dxf == 7.0).all()
+    else:
+        assert np.allclose(pf, pf.T, rtol=0, atol=0)
+
+
+def test_orient_kernels_name_a_wrong_size() -> None:
+    """A covariance of the wrong size is a ValueError naming the kernel, not a crash."""
+    k = _kernel("imud._kernels")
+    with pytest.raises(ValueError, match="orient_propagate"):
+        k.orient_propagate(np.eye(7), np.zeros(9), 1.0, np.zeros(8), 0.1, 0.0)
+    with pytest.raises(ValueError, match="orient_update"):
+        k.orient_update(
+            np.eye(8),
+            np.zeros((4, 8)),
+            np.zeros(4),
+            np.eye(4),
+            1.0,
+            0,
+            1.0,
+            None,
+            False,
+            np.zeros(8),
+        )
+    with pytest.raises(ValueError, match="up"):
+        k.orient_update(
+            np.eye(8),
+            np.zeros((1, 8)),
+            np.zeros(1),
+            np.eye(1),
+            1.0,
+            1,
+            1.0,
+            None,
+            False,
+            np.zeros(8),
+        )
+
+
 def _mpu_run() -> list[bytes]:
     device = {"chip": "mpu6050", "odr_hz": 1000, "dlpf_hz": 188, "orientation": {"enabled": True}}
     sim = {"seed": 9, "motion": {"kind": "tumble", "rate_dps": [10.0, 20.0, 60.0]}}
@@ -537,12 +669,13 @@ def _mpu_run() -> list[bytes]:
 
 
 def test_a_simulated_mpu6050_orients_the_same_both_ways(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The daemon's orientation stage with the kernel, then with its NumPy twin, over 6 s of a
+    """The daemon's orientation stage with the kernels, then with their NumPy twins, over 6 s of a
     turning chip (the filter starts, corrects and learns its bias in that time): the same
     published orientations, to float32's rounding."""
     _kernel("imud._kernels")
     fast = [wire.decode(b) for b in _mpu_run()]
     monkeypatch.setattr(ekf, "_kernels", None)
+    monkeypatch.setattr(kalman, "_kernels", None)
     slow = [wire.decode(b) for b in _mpu_run()]
     assert len(fast) == len(slow) > 100
     for a, b in zip(fast, slow, strict=True):

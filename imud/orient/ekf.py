@@ -36,12 +36,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from enum import Enum, StrEnum
+from enum import StrEnum
 
 import numpy as np
 import numpy.typing as npt
 
 from imud.compiled import load
+from imud.orient import kalman
+from imud.orient.kalman import FORM_V, N_STATES, Learn
 from imud.rotations import quat_exp, quat_to_matrix
 
 F64 = npt.NDArray[np.float64]
@@ -74,20 +76,6 @@ INIT_TILT_SIGMA = math.radians(5.0)  # the first mean may hold linear accelerati
 INIT_HEADING_SIGMA = math.radians(15.0)  # and the tilt's error shows in the heading, 2-3x
 _I2 = np.eye(2)
 _I3 = np.eye(3)
-N_STATES = 8  # world rotation error 3, gyro bias 3, horizontal linear acceleration 2
-_I8 = np.eye(N_STATES)
-
-
-class Learn(Enum):
-    """What a gravity correction may teach beyond the tilt (see `_accel_update`)."""
-
-    ALL = "all"
-    HORIZONTAL = "horizontal"  # the bias's components across the body's vertical
-    VERTICAL = "vertical"  # the bias's component along the body's vertical
-    NOTHING = "nothing"
-    # ALL if the innovation is well inside its own 95 % region, else NOTHING: before the
-    # linear acceleration's level is known, only what plainly agrees with the model
-    IF_CONSISTENT = "if_consistent"
 
 
 class OrientState(StrEnum):
@@ -117,35 +105,6 @@ class Counters:
     recoveries: int = 0
 
 
-def _rotation_form() -> F64:
-    """C (9, 16): R(e).ravel() = C @ (e outer e).ravel() for a unit quaternion e, so sums of
-    rotation matrices (and of rotated vectors) over a chunk are sums of e outer e."""
-    c = np.zeros((3, 3, 4, 4))
-    w, x, y, z = 0, 1, 2, 3
-
-    def put(i: int, j: int, terms: list[tuple[float, int, int]]) -> None:
-        for k, a, b in terms:
-            c[i, j, a, b] += k / 2 if a != b else k
-            if a != b:
-                c[i, j, b, a] += k / 2
-
-    put(0, 0, [(1, w, w), (1, x, x), (-1, y, y), (-1, z, z)])
-    put(0, 1, [(2, x, y), (-2, w, z)])
-    put(0, 2, [(2, x, z), (2, w, y)])
-    put(1, 0, [(2, x, y), (2, w, z)])
-    put(1, 1, [(1, w, w), (-1, x, x), (1, y, y), (-1, z, z)])
-    put(1, 2, [(2, y, z), (-2, w, x)])
-    put(2, 0, [(2, x, z), (-2, w, y)])
-    put(2, 1, [(2, y, z), (2, w, x)])
-    put(2, 2, [(1, w, w), (-1, x, x), (-1, y, y), (1, z, z)])
-    return c.reshape(9, 16)
-
-
-_FORM = _rotation_form()
-# (3, 48): sum_k R(e_k) v_k = _FORM_V @ (sum_k (e_k outer e_k) outer v_k).ravel()
-_FORM_V = np.einsum("ijp->ipj", _FORM.reshape(3, 3, 16)).reshape(3, 48)
-
-
 def _quat_exp1(x: float, y: float, z: float) -> F64:
     th = math.sqrt(x * x + y * y + z * z)
     s = math.sin(0.5 * th) / th if th > 1e-12 else 0.5
@@ -171,26 +130,6 @@ def _left(q: F64) -> F64:
     return np.array([[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]])
 
 
-def _inverse(s: F64) -> F64 | None:
-    """The inverse of a small symmetric positive matrix (closed form up to 2 x 2); None if
-    singular."""
-    if s.shape[0] == 1:
-        v = float(s[0, 0])
-        return None if not v > 0 else np.array([[1.0 / v]])
-    if s.shape[0] == 2:
-        (a, b), (c, d) = s.tolist()
-        det = a * d - b * c
-        if not det > 0:
-            return None
-        inv: F64 = np.array([[d, -b], [-c, a]]) / det
-        return inv
-    try:
-        out: F64 = np.asarray(np.linalg.inv(s), dtype=np.float64)
-    except np.linalg.LinAlgError:
-        return None
-    return out
-
-
 def tilt_quaternion(accel: F64) -> F64:
     """The orientation with zero heading whose gravity matches a mean specific force (3,): the
     shortest rotation taking the body's measured 'up' to the world's z."""
@@ -207,7 +146,7 @@ def tilt_quaternion(accel: F64) -> F64:
 @dataclass
 class _Interval:
     """What one correction interval has gathered so far. Rotation matrices are summed as sums of
-    q outer q (`_FORM` turns them into matrices at the correction), so a chunk adds two small
+    q outer q (`kalman.FORM` turns them into matrices at the correction), so a chunk adds two small
     products and rotates nothing."""
 
     n: int = 0  # samples with a valid accelerometer reading
@@ -330,7 +269,7 @@ class OrientationFilter:
         if iv.steps < target:  # j == n: the whole batch went in
             return n
         self._iv = _Interval()
-        mean = _FORM_V @ iv.qqa.ravel() / max(iv.n, 1)
+        mean = FORM_V @ iv.qqa.ravel() / max(iv.n, 1)
         g = float(np.linalg.norm(mean))
         if iv.n == 0 or not g > 0.0:  # no gravity seen (no valid accelerometer): wait on
             self.q = np.array([1.0, 0.0, 0.0, 0.0])
@@ -463,17 +402,12 @@ class OrientationFilter:
         qn = left @ _quat_exp1(x, y, z)
         self.q = qn / math.sqrt(float(qn @ qn))
 
-    def _propagate(self, iv: _Interval) -> None:
+    def _propagate(self, iv: _Interval, rotations: F64) -> None:
         """The covariance over the interval: d(dtheta)/dt = -R db, white gyro noise, the bias's
-        random walk."""
-        a1 = (_FORM @ iv.qq).reshape(3, 3) * (iv.t / max(iv.steps, 1))
+        random walk; `rotations` is the interval's sum of rotation matrices (9)."""
         rho = math.exp(-iv.t / self.linear_time_s)
-        phi = _I8.copy()
-        phi[:3, 3:6] = -a1
-        phi[6, 6] = phi[7, 7] = rho
-        q = self._q_density * iv.t
-        q[6] = q[7] = self.linear_var * (1.0 - rho * rho)
-        self.P = phi @ self.P @ phi.T + np.diag(q)
+        turn = rotations * (iv.t / max(iv.steps, 1))
+        kalman.propagate(self.P, turn, rho, self._q_density, iv.t, self.linear_var)
         self.a = self.a * rho
 
     def _mag_chunk(self, mag: F64, q: F64) -> None:
@@ -493,7 +427,8 @@ class OrientationFilter:
     def _correct(self) -> None:
         iv = self._iv
         self._iv = _Interval()
-        self._propagate(iv)
+        sums = kalman.interval_sums(iv.qq, iv.qqa, iv.kqqa)
+        self._propagate(iv, sums[:9])
         for mean, var in self._pending_zero_rate:
             h = np.zeros((3, N_STATES))
             h[:, 3:6] = _I3
@@ -501,11 +436,11 @@ class OrientationFilter:
             self.counters.zero_rate_updates += 1
         self._pending_zero_rate = []
         if iv.n:
-            self._accel_update(iv)
+            self._accel_update(iv, sums)
         if iv.m_n and self.use_mag:
             self._mag_update(iv)
 
-    def _gravity_window(self, iv: _Interval) -> tuple[F64, float]:
+    def _gravity_window(self, iv: _Interval, sums: F64) -> tuple[F64, float]:
         """The world-frame mean specific force under a triangle spanning the last interval and
         this one (rising through the last, falling through this), and how long before this
         interval's end the window's centre lies (s).
@@ -518,8 +453,8 @@ class OrientationFilter:
         filter averaging them, is a plain mean's, so the measurement noise stays as it was.
         The first interval after the start or a re-seed is a plain mean."""
         steps = max(iv.steps, 1)
-        total = _FORM_V @ iv.qqa.ravel()
-        rising = _FORM_V @ iv.kqqa.ravel() / steps
+        total = sums[9:12]
+        rising = sums[12:15] / steps
         w_rise = iv.kn / steps
         w_fall = iv.n - w_rise
         prev = self._rise
@@ -533,8 +468,9 @@ class OrientationFilter:
         centre = (w_fall * iv.t / 3.0 + w * (iv.t + t_prev / 3.0)) / (w_fall + w)
         return (total - rising + vec) / (w_fall + w), centre
 
-    def _accel_update(self, iv: _Interval) -> None:
-        mean, centre = self._gravity_window(iv)
+    def _accel_update(self, iv: _Interval, sums: F64) -> None:
+        """Gravity's correction from the interval's `sums` (`kalman.interval_sums`)."""
+        mean, centre = self._gravity_window(iv, sums)
         g = float(np.linalg.norm(mean))
         g0 = self._g0 if self._g0 is not None else g
         t = iv.n * iv.t / max(iv.steps, 1)
@@ -553,16 +489,14 @@ class OrientationFilter:
             self._white_var += WHITE_GAIN * (0.25 * float(d @ d) - self._white_var)
         self._prev_y = y
         var = max(var, self._white_var)
-        gm = np.array([[0.0, -g, 0.0], [g, 0.0, 0.0]])
         # the error at the window's centre: the end's, plus the turn the bias made since (the
         # body's rotation over the interval taken as steady)
-        a1 = (_FORM @ iv.qq).reshape(3, 3) / max(iv.steps, 1)
-        h = np.hstack([gm, gm @ (a1 * centre), _I2])
+        h = np.empty((2, N_STATES))
+        hph = kalman.gravity_h(self.P, sums[:9] * (centre / max(iv.steps, 1)), g, h)
         # covariance matching: the innovations' spread beyond what the filter predicts is the
         # platform's linear acceleration (or vibration the average did not cancel); its
         # variance follows, within [LINEAR_FLOOR, linear_max], rejected intervals included
-        hph = h @ self.P @ h.T
-        excess = 0.5 * float(y @ y - hph[0, 0] - hph[1, 1]) - var
+        excess = 0.5 * (float(y @ y) - hph) - var
         self._adapt_n += 1
         lv = self.linear_var + max(ADAPT_GAIN, 1.0 / self._adapt_n) * excess  # a mean at first
         self.linear_var = min(max(lv, LINEAR_FLOOR**2), self.linear_max**2)
@@ -645,39 +579,16 @@ class OrientationFilter:
             self.counters.mag_rejected += 1
 
     def _update(self, h: F64, y: F64, r: F64, dof: int, learn: Learn = Learn.ALL) -> bool:
-        """A Kalman update with the chi-squared gate; False (and nothing changed) if rejected.
-        `learn` below ALL: the states it leaves out are considered, not estimated (a Schmidt
-        update: their gain is zero, the covariance stays consistent)."""
-        P = self.P
-        ph = P @ h.T
-        s = h @ ph + r
-        s_inv = _inverse(s)
-        if s_inv is None:
-            return False
-        nis = float(y @ s_inv @ y)
+        """A Kalman update with the chi-squared gate (`kalman.update`); False (and nothing
+        changed) if rejected. Without a magnetometer's heading, an update that learns less than
+        all leaves the heading alone too: through its correlation with the tilt it would follow
+        the acceleration taken for gravity."""
         gate = CHI2_2DOF_999 if dof == 2 else CHI2_1DOF_999 if dof == 1 else CHI2_3DOF_999
-        if not nis <= gate:
+        up = self._body_up() if learn in (Learn.VERTICAL, Learn.HORIZONTAL) else None
+        dx = np.empty(N_STATES)
+        keep_heading = not self.heading_known
+        if not kalman.update(self.P, h, y, r, gate, learn, CHI2_2DOF_95, up, keep_heading, dx):
             return False
-        k = ph @ s_inv
-        if learn is Learn.IF_CONSISTENT:
-            learn = Learn.ALL if nis <= CHI2_2DOF_95 else Learn.NOTHING
-        if learn is Learn.ALL:
-            p = P - k @ ph.T
-        else:
-            if learn is Learn.NOTHING:
-                k[3:6] = 0.0
-            else:  # the bias along the body's vertical alone, or all but it
-                u = self._body_up()
-                along = np.outer(u, u @ k[3:6])
-                k[3:6] = along if learn is Learn.VERTICAL else k[3:6] - along
-            if not self.heading_known:
-                # nor the heading through its correlation with the tilt (with no magnetometer
-                # to measure it): it would follow the acceleration taken for gravity too
-                k[2] = 0.0
-            ikh = _I8 - k @ h
-            p = ikh @ P @ ikh.T + k @ r @ k.T
-        dx = k @ y
-        self.P = 0.5 * (p + p.T)
         self._rotate_world(dx[:3])
         self.b = self.b + dx[3:6]
         self.a = self.a + dx[6:]
