@@ -853,6 +853,161 @@ static PyObject *orient_update(PyObject *self, PyObject *const *args, Py_ssize_t
     return PyBool_FromLong(ok);
 }
 
+/* --- the gyro-bias tracker's windows (calib.track, its NumPy twin) --- */
+
+#define TW_BLOCKS 8 /* calib.track.BLOCKS */
+/* the running window's state, in doubles: */
+enum {
+    TW_COUNT, TW_BAD, TW_NO_ACCEL, TW_G0, TW_A0 = TW_G0 + 3, TW_SG = TW_A0 + 3, TW_SGG = TW_SG + 3,
+    TW_SA = TW_SGG + 3, TW_SAA = TW_SA + 3, TW_BG = TW_SAA + 3, TW_BA = TW_BG + 3 * TW_BLOCKS,
+    TW_STATE = TW_BA + 3 * TW_BLOCKS
+};
+/* and a finished window's row: */
+enum {
+    TR_OK, TR_ACCEL, TR_GMEAN, TR_GVAR = TR_GMEAN + 3, TR_AMEAN = TR_GVAR + 3,
+    TR_AVAR = TR_AMEAN + 3, TR_GRATIO = TR_AVAR + 3, TR_ARATIO, TR_ROW
+};
+
+/* One signal's mean, variance (ddof 1) and long-run ratio from shifted sums. */
+static double tw_stats(const double *st, int shift, int s1, int s2, int blocks, long m,
+                       double *mean, double *var) {
+    double vsum = 0.0;
+    for (int d = 0; d < 3; d++) {
+        const double a = st[s1 + d], b = st[s2 + d];
+        mean[d] = st[shift + d] + a / (double)m;
+        var[d] = (b - a * a / (double)m) / (double)(m - 1);
+        vsum += var[d];
+    }
+    if (m < 4 * TW_BLOCKS)
+        return 1.0;
+    const long b = m / TW_BLOCKS;
+    double long_run = 0.0;
+    for (int d = 0; d < 3; d++) {
+        double bm[TW_BLOCKS], mm = 0.0;
+        for (int k = 0; k < TW_BLOCKS; k++) {
+            bm[k] = st[blocks + 3 * k + d] / (double)b;
+            mm += bm[k];
+        }
+        mm /= TW_BLOCKS;
+        double acc = 0.0;
+        for (int k = 0; k < TW_BLOCKS; k++)
+            acc += (bm[k] - mm) * (bm[k] - mm);
+        long_run += acc / (TW_BLOCKS - 1);
+    }
+    return long_run * (double)b / (vsum > 1e-30 ? vsum : 1e-30);
+}
+
+/* track_windows(gyro, accel, m, state, out) -> windows
+ *
+ * Feeds a batch (n x 3 each; accel may be None) into the running window of `m` samples whose
+ * sums `state` holds (TW_STATE doubles, zeros at first), and writes each window the batch
+ * completes as a row of `out` (TR_ROW doubles each): whether it had no invalid value, whether
+ * every sample had an accelerometer reading, each signal's mean and variance (ddof 1) per axis
+ * and its long-run variance ratio (calib.track.long_run_ratio). Values are summed less the
+ * window's first sample, so the variance of a signal far from zero keeps its digits. */
+static PyObject *track_windows(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 5) {
+        PyErr_SetString(PyExc_TypeError, "track_windows() takes 5 arguments");
+        return NULL;
+    }
+    const long m = PyLong_AsLong(args[2]);
+    if (PyErr_Occurred())
+        return NULL;
+    if (m < 2) {
+        PyErr_SetString(PyExc_ValueError, "track_windows: windows of at least 2 samples");
+        return NULL;
+    }
+    const int has_accel = args[1] != Py_None;
+    Py_buffer gb, ab, sb, ob;
+    if (!get_buffer(args[0], &gb, 0, 0, "track_windows gyro"))
+        return NULL;
+    const Py_ssize_t n = gb.len / 24;
+    if (has_accel && !get_buffer(args[1], &ab, n * 24, 0, "track_windows accel")) {
+        PyBuffer_Release(&gb);
+        return NULL;
+    }
+    if (!get_buffer(args[3], &sb, TW_STATE * 8, 1, "track_windows state")) {
+        PyBuffer_Release(&gb);
+        if (has_accel)
+            PyBuffer_Release(&ab);
+        return NULL;
+    }
+    if (!get_buffer(args[4], &ob, 0, 1, "track_windows out")) {
+        PyBuffer_Release(&gb);
+        PyBuffer_Release(&sb);
+        if (has_accel)
+            PyBuffer_Release(&ab);
+        return NULL;
+    }
+    const Py_ssize_t cap = ob.len / (TR_ROW * 8);
+    const double *g = gb.buf, *a = has_accel ? ab.buf : NULL;
+    double *st = sb.buf, *out = ob.buf;
+    const long b = m / TW_BLOCKS;
+    Py_ssize_t rows = 0;
+    int full = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        long c = (long)st[TW_COUNT];
+        if (c == 0) {
+            memset(st, 0, TW_STATE * sizeof(double));
+            for (int d = 0; d < 3; d++) {
+                st[TW_G0 + d] = g[3 * i + d];
+                st[TW_A0 + d] = a != NULL ? a[3 * i + d] : 0.0;
+            }
+        }
+        if (a == NULL)
+            st[TW_NO_ACCEL] = 1.0;
+        const int blk = (b > 0 && c < b * TW_BLOCKS) ? (int)(c / b) : -1;
+        for (int d = 0; d < 3; d++) {
+            const double x = g[3 * i + d];
+            if (!isfinite(x))
+                st[TW_BAD] += 1.0;
+            const double dx = x - st[TW_G0 + d];
+            st[TW_SG + d] += dx;
+            st[TW_SGG + d] += dx * dx;
+            if (blk >= 0)
+                st[TW_BG + 3 * blk + d] += x - st[TW_G0 + d];
+            if (a != NULL) {
+                const double y = a[3 * i + d];
+                if (!isfinite(y))
+                    st[TW_BAD] += 1.0;
+                const double dy = y - st[TW_A0 + d];
+                st[TW_SA + d] += dy;
+                st[TW_SAA + d] += dy * dy;
+                if (blk >= 0)
+                    st[TW_BA + 3 * blk + d] += dy;
+            }
+        }
+        st[TW_COUNT] = (double)(++c);
+        if (c < m)
+            continue;
+        if (rows >= cap) {
+            full = 1;
+            break;
+        }
+        double *r = out + TR_ROW * rows++;
+        memset(r, 0, TR_ROW * sizeof(double));
+        r[TR_OK] = st[TW_BAD] == 0.0;
+        r[TR_ACCEL] = st[TW_NO_ACCEL] == 0.0;
+        r[TR_GRATIO] = tw_stats(st, TW_G0, TW_SG, TW_SGG, TW_BG, m, r + TR_GMEAN, r + TR_GVAR);
+        r[TR_ARATIO] = r[TR_ACCEL] != 0.0
+                           ? tw_stats(st, TW_A0, TW_SA, TW_SAA, TW_BA, m, r + TR_AMEAN,
+                                      r + TR_AVAR)
+                           : 1.0;
+        st[TW_COUNT] = 0.0;
+    }
+    PyBuffer_Release(&gb);
+    PyBuffer_Release(&sb);
+    PyBuffer_Release(&ob);
+    if (has_accel)
+        PyBuffer_Release(&ab);
+    if (full) {
+        PyErr_SetString(PyExc_ValueError, "track_windows: out holds too few rows");
+        return NULL;
+    }
+    return PyLong_FromSsize_t(rows);
+}
+
 static PyMethodDef methods[] = {
     {"stamps", (PyCFunction)(void (*)(void))stamps, METH_FASTCALL,
      "Stamps on the fitted line, steered and rounded (SampleClock.update's tail)."},
@@ -874,6 +1029,8 @@ static PyMethodDef methods[] = {
      "Gravity's measurement matrix and the trace of h P h^T (orient.kalman)."},
     {"orient_update", (PyCFunction)(void (*)(void))orient_update, METH_FASTCALL,
      "A gated, Schmidt-capable Kalman update of the orientation covariance (orient.kalman)."},
+    {"track_windows", (PyCFunction)(void (*)(void))track_windows, METH_FASTCALL,
+     "The gyro-bias tracker's windows: each one's means, variances and long-run ratios."},
     {"reaches", (PyCFunction)(void (*)(void))reaches, METH_FASTCALL,
      "Whether any int32 count is at or beyond +-full_scale."},
     {NULL, NULL, 0, NULL},

@@ -45,9 +45,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from imud.compiled import load
 from imud.settings import GyroBiasTracking
 
 F64 = npt.NDArray[np.float64]
+_kernels = load("imud._kernels")  # the windows' statistics in one call a batch, when built
 
 CHI2_3DOF_P1E4 = 21.108  # chi-squared quantile, 3 degrees of freedom, upper tail 1e-4
 LEARN_WINDOWS = 10  # windows seen before a floor is trusted
@@ -95,6 +97,11 @@ class _Stats:
 
 
 BLOCKS = 8  # a window's block means, for the long-run variance of its mean
+# a finished window's statistics as a row (the kernel's layout, imud/_kernels.c TR_*): whether
+# it had no invalid value, whether it had the accelerometer throughout, the gyro's mean and
+# variance per axis, the accelerometer's, and their long-run variance ratios
+ROW = 16
+_STATE = 70  # the kernel's running window (TW_STATE doubles)
 CORR_GAIN = 0.1  # how fast the learned correlation factor follows new still windows
 
 
@@ -142,9 +149,13 @@ class GyroBiasTracker:
         self.windows = 0
         self.still_windows = 0  # windows that passed the stillness tests
         self.learned_windows = 0  # of which confirmed and learned
+        # the twin's samples not yet in a window (with None for a batch without accelerometer)
         self._pending_g: list[F64] = []
-        self._pending_a: list[F64] = []
+        self._pending_a: list[F64 | None] = []
         self._pending_n = 0
+        # the kernel's running window (its sums) and the rows it writes finished windows into
+        self._state = np.zeros(_STATE)
+        self._out = np.empty((4, ROW))
         self._floor_g: float | None = None
         self._floor_a: float | None = None
         # the noise's long-run variance factors (gyro, accel), learned from still windows
@@ -169,57 +180,97 @@ class GyroBiasTracker:
         self._feed(gyro, accel, period_s)
         return out
 
+    def observe(self, gyro: F64, accel: F64 | None, period_s: float) -> None:
+        """Learn from the batch alone (its stillness tests, for an owner that corrects the gyro
+        itself)."""
+        self._feed(gyro, accel, period_s)
+
     # --- learning -------------------------------------------------------------------------
     def _feed(self, gyro: F64, accel: F64 | None, period_s: float) -> None:
-        window_s = self.settings.window_s
-        m = max(MIN_WINDOW, round(window_s / period_s))
+        m = max(MIN_WINDOW, round(self.settings.window_s / period_s))
+        if _kernels is not None:
+            rows = self._windows(gyro, accel, m)
+        else:
+            rows = self._windows_numpy(gyro, accel, m)
+        if not rows:
+            return
+        rise = 2.0 ** (m * period_s / FLOOR_DOUBLING_S)
+        gain = 1.0 - math.exp(-m * period_s / self.settings.time_constant_s)
+        confirm = math.ceil(self.settings.confirm_s / (m * period_s) - 1e-9)
+        for row in rows:  # a handful of windows per batch at most
+            self.windows += 1
+            if not row[0]:
+                self.state, self._unconfirmed = TrackState.NO_DATA, []
+                self._run = self._prev = None
+                continue
+            accel_seen = bool(row[1])
+            w = _Stats(
+                np.array(row[2:5]),
+                np.array(row[5:8]),
+                np.array(row[8:11]) if accel_seen else None,
+                np.array(row[11:14]) if accel_seen else None,
+                m,
+                row[14],
+                row[15],
+            )
+            self._judge(w, rise, gain, confirm)
+
+    def _windows(self, gyro: F64, accel: F64 | None, m: int) -> list[list[float]]:
+        """The windows this batch completes, as rows (`ROW`), from the compiled kernel, which
+        keeps the running window's sums instead of the samples."""
+        assert _kernels is not None
+        f8 = np.float64  # (a no-op for float64s, a copy of anything else)
+        cap = gyro.shape[0] // m + 1
+        if self._out.shape[0] < cap:
+            self._out = np.empty((cap, ROW))
+        k: int = _kernels.track_windows(
+            np.ascontiguousarray(gyro, dtype=f8),
+            None if accel is None else np.ascontiguousarray(accel, dtype=f8),
+            m,
+            self._state,
+            self._out,
+        )
+        if not k:  # most batches: the window goes on
+            return []
+        rows: list[list[float]] = self._out[:k].tolist()
+        return rows
+
+    def _windows_numpy(self, gyro: F64, accel: F64 | None, m: int) -> list[list[float]]:
+        """`_windows` in NumPy: the kernel's twin and reference. A window has accelerometer
+        statistics only if every batch of it had an accelerometer."""
         self._pending_g.append(gyro)
-        if accel is not None:
-            self._pending_a.append(accel)
+        self._pending_a.append(accel)
         self._pending_n += gyro.shape[0]
         if self._pending_n < m:
-            return
+            return []
         g = np.concatenate(self._pending_g)
-        a = (
-            np.concatenate(self._pending_a)
-            if len(self._pending_a) == len(self._pending_g)
-            else None
-        )
+        have = [a is not None for a in self._pending_a]
+        a = np.concatenate([x for x in self._pending_a if x is not None]) if all(have) else None
         k = g.shape[0] // m
         used = k * m
-        self._pending_g = [g[used:]]
-        self._pending_a = [a[used:]] if a is not None else []
-        self._pending_n = g.shape[0] - used
+        rest_g = g[used:]
+        # what is left over starts the next window; its accelerometer only if it all had one
+        rest_a = a[used:] if a is not None else None
+        self._pending_g, self._pending_a = [rest_g], [rest_a]
+        self._pending_n = rest_g.shape[0]
         gw = g[:used].reshape(k, m, 3)
         aw = a[:used].reshape(k, m, 3) if a is not None else None
         bad = np.count_nonzero(~np.isfinite(gw.reshape(k, -1)), axis=1)
         if aw is not None:
             bad = bad + np.count_nonzero(~np.isfinite(aw.reshape(k, -1)), axis=1)
-        ok = (bad == 0).tolist()
-        g_mean, g_var = gw.mean(axis=1), gw.var(axis=1, ddof=1)
-        a_mean = aw.mean(axis=1) if aw is not None else None
-        a_var = aw.var(axis=1, ddof=1) if aw is not None else None
-        g_ratio = long_run_ratio(gw).tolist()
-        a_ratio = long_run_ratio(aw).tolist() if aw is not None else [1.0] * k
-        rise = 2.0 ** (m * period_s / FLOOR_DOUBLING_S)
-        gain = 1.0 - math.exp(-m * period_s / self.settings.time_constant_s)
-        confirm = math.ceil(self.settings.confirm_s / (m * period_s) - 1e-9)
-        for i in range(k):  # a handful of windows per batch at most
-            self.windows += 1
-            if not ok[i]:
-                self.state, self._unconfirmed = TrackState.NO_DATA, []
-                self._run = self._prev = None
-                continue
-            w = _Stats(
-                g_mean[i],
-                g_var[i],
-                None if a_mean is None else a_mean[i],
-                None if a_var is None else a_var[i],
-                m,
-                g_ratio[i],
-                a_ratio[i],
-            )
-            self._judge(w, rise, gain, confirm)
+        rows = np.zeros((k, ROW))
+        rows[:, 0] = bad == 0
+        rows[:, 2:5] = gw.mean(axis=1)
+        rows[:, 5:8] = gw.var(axis=1, ddof=1)
+        rows[:, 14] = long_run_ratio(gw)
+        rows[:, 15] = 1.0
+        if aw is not None:
+            rows[:, 1] = 1.0
+            rows[:, 8:11] = aw.mean(axis=1)
+            rows[:, 11:14] = aw.var(axis=1, ddof=1)
+            rows[:, 15] = long_run_ratio(aw)
+        out: list[list[float]] = rows.tolist()
+        return out
 
     def _quiet(self, w: _Stats, rise: float) -> bool:
         """Test 1, after updating the noise floors with this window."""

@@ -74,8 +74,8 @@ DRIFT_S = 0.5
 MAG_NORM_TOLERANCE = 0.1  # a field whose magnitude departs from the reference by more: disturbed
 INIT_TILT_SIGMA = math.radians(5.0)  # the first mean may hold linear acceleration: say so
 INIT_HEADING_SIGMA = math.radians(15.0)  # and the tilt's error shows in the heading, 2-3x
-_I2 = np.eye(2)
 _I3 = np.eye(3)
+_COV6 = np.array([0, 1, 2, 9, 10, 18])  # xx, xy, xz, yy, yz, zz in the flattened 8 x 8
 
 
 class OrientState(StrEnum):
@@ -122,6 +122,33 @@ def _ramp(m: int) -> F64:
         if len(_RAMPS) < 4096:
             _RAMPS[m] = r
     return r
+
+
+Vec3 = tuple[float, float, float]
+Quat = tuple[float, float, float, float]
+
+
+def _quat_mul(p: Quat | list[float], q: Quat | list[float]) -> Quat:
+    """p x q (Hamilton), in floats."""
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return (
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+    )
+
+
+def _rotate(e: Quat, v: Vec3) -> Vec3:
+    """R(e) v for a unit quaternion e, in floats."""
+    w, x, y, z = e
+    a, b, c = v
+    return (
+        (1 - 2 * (y * y + z * z)) * a + 2 * (x * y - w * z) * b + 2 * (x * z + w * y) * c,
+        2 * (x * y + w * z) * a + (1 - 2 * (x * x + z * z)) * b + 2 * (y * z - w * x) * c,
+        2 * (x * z - w * y) * a + 2 * (y * z + w * x) * b + (1 - 2 * (x * x + y * y)) * c,
+    )
 
 
 def _left(q: F64) -> F64:
@@ -203,14 +230,14 @@ class OrientationFilter:
         self._adapt_n = 0  # corrections the linear acceleration's variance has followed
         self._mag_ref: float | None = None  # |B| at the start, T
         self._rejected_s = 0.0
-        self._prev_y: F64 | None = None  # the last gravity innovation
+        self._prev_y: tuple[float, float] | None = None  # the last gravity innovation
         self._white_var = 0.0  # its steps' variance per axis, m^2/s^4
         self._g_var = 0.0  # |a| about the reference's variance, in intervals gravity explained
         self._drifted_s = 0.0  # rejected in a row with |a| at gravity: the estimate drifted
         self._iv = _Interval()
         # the last interval's half of the next gravity window: its world-frame specific force
         # weighted by a ramp rising to its end, the ramp's weight, its length (s)
-        self._rise: tuple[F64, float, float] | None = None
+        self._rise: tuple[Vec3, float, float] | None = None
         self._pending_zero_rate: list[tuple[F64, F64]] = []
 
     # --- inputs ---------------------------------------------------------------------------
@@ -287,7 +314,7 @@ class OrientationFilter:
             m = quat_to_matrix(self.q) @ (iv.m_sum / iv.m_n)
             bh = math.hypot(float(m[0]), float(m[1]))
             if bh > 0.0:
-                self._rotate_world(np.array([0.0, 0.0, self._north(m)]))
+                self._rotate_world(0.0, 0.0, self._north(m))
                 self._mag_ref = float(np.linalg.norm(m))
                 self.heading_known = True
                 self.P[2, 2] = INIT_HEADING_SIGMA**2
@@ -339,9 +366,9 @@ class OrientationFilter:
         f8 = np.float64  # (the kernel reads float64s: a no-op for them, a copy of anything else)
         w, x, y, z, kn, k = _kernels.orient_chunk(
             np.ascontiguousarray(gyro, dtype=f8),
-            np.ascontiguousarray(self.b, dtype=f8),
+            self.b,  # (the filter's own float64 arrays)
             dt,
-            np.ascontiguousarray(self.q, dtype=f8),
+            self.q,
             None if accel is None else np.ascontiguousarray(accel, dtype=f8),
             float(iv.steps),
             q_out,
@@ -420,8 +447,9 @@ class OrientationFilter:
         self._iv.m_n += int(ok.sum())
 
     def _cov6(self) -> F64:
-        p = self.P
-        return np.array([p[0, 0], p[0, 1], p[0, 2], p[1, 1], p[1, 2], p[2, 2]])
+        """The rotation error's covariance: xx, xy, xz, yy, yz, zz."""
+        out: F64 = self.P.take(_COV6)
+        return out
 
     # --- correction ------------------------------------------------------------------------
     def _correct(self) -> None:
@@ -440,7 +468,7 @@ class OrientationFilter:
         if iv.m_n and self.use_mag:
             self._mag_update(iv)
 
-    def _gravity_window(self, iv: _Interval, sums: F64) -> tuple[F64, float]:
+    def _gravity_window(self, iv: _Interval, sums: F64) -> tuple[Vec3, float]:
         """The world-frame mean specific force under a triangle spanning the last interval and
         this one (rising through the last, falling through this), and how long before this
         interval's end the window's centre lies (s).
@@ -453,41 +481,52 @@ class OrientationFilter:
         filter averaging them, is a plain mean's, so the measurement noise stays as it was.
         The first interval after the start or a re-seed is a plain mean."""
         steps = max(iv.steps, 1)
-        total = sums[9:12]
-        rising = sums[12:15] / steps
+        v = sums.tolist()
+        total = v[9:12]
+        rising = (v[12] / steps, v[13] / steps, v[14] / steps)
         w_rise = iv.kn / steps
         w_fall = iv.n - w_rise
         prev = self._rise
         self._rise = (rising, w_rise, iv.t)
         if prev is None or not prev[1] + w_fall > 0.0:
-            return total / iv.n, 0.5 * iv.t
+            n = iv.n
+            return (total[0] / n, total[1] / n, total[2] / n), 0.5 * iv.t
         vec, w, t_prev = prev
         # this interval's falling half weighs a sample at x of the way through it by (1 - x),
         # (1 - x) t before its end: its centre is t / 3 before; the last one's rising half
         # weighs by x, t + (1 - x) t_prev before: its centre is t + t_prev / 3 before
         centre = (w_fall * iv.t / 3.0 + w * (iv.t + t_prev / 3.0)) / (w_fall + w)
-        return (total - rising + vec) / (w_fall + w), centre
+        k = w_fall + w
+        return (
+            (total[0] - rising[0] + vec[0]) / k,
+            (total[1] - rising[1] + vec[1]) / k,
+            (total[2] - rising[2] + vec[2]) / k,
+        ), centre
 
     def _accel_update(self, iv: _Interval, sums: F64) -> None:
-        """Gravity's correction from the interval's `sums` (`kalman.interval_sums`)."""
-        mean, centre = self._gravity_window(iv, sums)
-        g = float(np.linalg.norm(mean))
+        """Gravity's correction from the interval's `sums` (`kalman.interval_sums`). Its scalar
+        steps are Python floats: as NumPy calls on 2- and 3-vectors they cost more than all
+        the matrix arithmetic (paced, after a sleep)."""
+        (mx, my, mz), centre = self._gravity_window(iv, sums)
+        g = math.sqrt(mx * mx + my * my + mz * mz)
         g0 = self._g0 if self._g0 is not None else g
         t = iv.n * iv.t / max(iv.steps, 1)
         # the datasheet's white noise averaged over the interval, what the innovations have
         # shown beyond it lately (vibration the average did not cancel, linear acceleration),
         # and |a| away from gravity (linear acceleration of that size, now)
         var = self.noise.accel**2 / t + (g - g0) ** 2
-        y = mean[:2] - self.a
+        ax, ay = self.a.tolist()
+        yx, yy = mx - ax, my - ay
+        yy2 = yx * yx + yy * yy
         # what the interval means scatter by from one to the next beyond the datasheet's white
         # noise (a vibration the mean did not cancel) is white noise too: measured by the
         # innovations' steps, which a slow acceleration hardly moves, it goes into the
         # measurement's noise, and only what is left (the slow part) into the linear
         # acceleration's state
         if self._prev_y is not None:
-            d = y - self._prev_y
-            self._white_var += WHITE_GAIN * (0.25 * float(d @ d) - self._white_var)
-        self._prev_y = y
+            dx, dy = yx - self._prev_y[0], yy - self._prev_y[1]
+            self._white_var += WHITE_GAIN * (0.25 * (dx * dx + dy * dy) - self._white_var)
+        self._prev_y = (yx, yy)
         var = max(var, self._white_var)
         # the error at the window's centre: the end's, plus the turn the bias made since (the
         # body's rotation over the interval taken as steady)
@@ -496,7 +535,7 @@ class OrientationFilter:
         # covariance matching: the innovations' spread beyond what the filter predicts is the
         # platform's linear acceleration (or vibration the average did not cancel); its
         # variance follows, within [LINEAR_FLOOR, linear_max], rejected intervals included
-        excess = 0.5 * (float(y @ y) - hph) - var
+        excess = 0.5 * (yy2 - hph) - var
         self._adapt_n += 1
         lv = self.linear_var + max(ADAPT_GAIN, 1.0 / self._adapt_n) * excess  # a mean at first
         self.linear_var = min(max(lv, LINEAR_FLOOR**2), self.linear_max**2)
@@ -513,7 +552,8 @@ class OrientationFilter:
             learn = Learn.ALL
         else:
             learn = Learn.HORIZONTAL
-        if self._update(h, y, _I2 * var, 2, learn):
+        y = np.array([yx, yy])
+        if self._update(h, y, np.array([[var, 0.0], [0.0, var]]), 2, learn):
             # the reference follows |a| slowly, from the intervals gravity explained: a
             # horizontal acceleration only ever adds to |a|, so a car's manoeuvres would raise
             # it, and every steady interval after them would look accelerated
@@ -532,14 +572,14 @@ class OrientationFilter:
         # platform: a hovering drone is not made to wait `recovery_s` at a 10-20 deg tilt. A
         # car's turn shows its |a| (2.5 m/s^2 of it: +0.32 m/s^2); a vertical acceleration
         # that hid one would need to cancel it for the whole run.
-        claimed = float(y @ y) / (2.0 * g0)
+        claimed = yy2 / (2.0 * g0)
         sd = math.sqrt(self.noise.accel**2 / t + self._g_var)
         seen = g - g0
         drifted = seen < DRIFT_SHARE * claimed and claimed - seen > DRIFT_SIGMAS * sd
         self._drifted_s = self._drifted_s + iv.t if drifted else 0.0
         if self._drifted_s >= DRIFT_S or self._rejected_s >= self.recovery_s:
             # never agreeing for this long: the tilt is wrong, not the accelerometer
-            self._seed_tilt(mean, iv.t)
+            self._seed_tilt(np.array([mx, my, mz]), iv.t)
             self.counters.recoveries += 1
             self._rejected_s = self._drifted_s = 0.0
 
@@ -550,7 +590,7 @@ class OrientationFilter:
         if bh <= 0.0 or norm <= 0.0:
             return
         if not self.heading_known:  # the first field seen (it came after the start)
-            self._rotate_world(np.array([0.0, 0.0, self._north(m)]))
+            self._rotate_world(0.0, 0.0, self._north(m))
             self.P[2, :] = 0.0
             self.P[:, 2] = 0.0
             self.P[2, 2] = INIT_HEADING_SIGMA**2
@@ -589,9 +629,11 @@ class OrientationFilter:
         keep_heading = not self.heading_known
         if not kalman.update(self.P, h, y, r, gate, learn, CHI2_2DOF_95, up, keep_heading, dx):
             return False
-        self._rotate_world(dx[:3])
-        self.b = self.b + dx[3:6]
-        self.a = self.a + dx[6:]
+        d = dx.tolist()
+        self._rotate_world(d[0], d[1], d[2])
+        b, a = self.b.tolist(), self.a.tolist()
+        self.b = np.array([b[0] + d[3], b[1] + d[4], b[2] + d[5]])
+        self.a = np.array([a[0] + d[6], a[1] + d[7]])
         return True
 
     def _body_up(self) -> F64:
@@ -599,10 +641,15 @@ class OrientationFilter:
         w, x, y, z = self.q.tolist()
         return np.array([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)])
 
-    def _rotate_world(self, dtheta: F64) -> None:
-        e = _quat_exp1(*dtheta.tolist())
-        q = _left(e) @ self.q
-        self.q = q / math.sqrt(float(q @ q))
+    def _rotate_world(self, x: float, y: float, z: float) -> None:
+        """Turn the estimate by the world-frame rotation vector (x, y, z). In Python floats: a
+        correction's few scalar steps cost less so than as NumPy calls."""
+        th = math.sqrt(x * x + y * y + z * z)
+        s = math.sin(0.5 * th) / th if th > 1e-12 else 0.5
+        e = (math.cos(0.5 * th), x * s, y * s, z * s)
+        w, a, b, c = _quat_mul(e, self.q.tolist())
+        n = math.sqrt(w * w + a * a + b * b + c * c)
+        self.q = np.array([w / n, a / n, b / n, c / n])
         if self._rise is not None:  # the next window's first half turns with the world
-            vec, w, t = self._rise
-            self._rise = (quat_to_matrix(e) @ vec, w, t)
+            vec, weight, t = self._rise
+            self._rise = (_rotate(e, vec), weight, t)

@@ -98,7 +98,7 @@ class OrientationStage:
                 f.step(np.repeat(gyro[:1], lost_before, axis=0), None, period_s)
         q, cov = f.step(gyro, accel, period_s, None if mag is None else mag)
         if not self.shared:
-            self.tracker.correct(gyro, accel, period_s)  # its stillness tests alone
+            self.tracker.observe(gyro, accel, period_s)  # its stillness tests alone
         else:
             # the published gyro is corrected by the filter's bias: the tracker's is the same
             self.tracker.bias = f.b.copy()
