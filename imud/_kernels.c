@@ -392,7 +392,8 @@ static void quat_left(const double q[4], const double e[4], double out[4]) {
     out[3] = z * e[0] - y * e[1] + x * e[2] + w * e[3];
 }
 
-/* orient_chunk(gyro, b, dt, q, accel, steps, q_out, qq, qqa, kqqa) -> (w, x, y, z, kn, k)
+/* orient_chunk(gyro, b, dt, q, accel, steps, q_out, qq, qqa, kqqa, p, c_out)
+ *     -> (w, x, y, z, kn, k)
  *
  * The orientation filter's integration of one chunk (orient.ekf.OrientationFilter._chunk, its
  * NumPy twin): each sample's orientation from the gyro less its bias (first order, from the
@@ -400,12 +401,14 @@ static void quat_left(const double q[4], const double e[4], double out[4]) {
  * accelerometer row of (q outer q) outer a (qqa, 16 x 3) and the same weighted by the sample's
  * index in the interval (kqqa; the interval had `steps` samples before the chunk). Returns the
  * orientation at the chunk's end (second order: Bortz's coning term), unit; the sum of the
- * valid rows' indices and their number. A non-finite gyro value turns nothing. Equal to the
- * twin to rounding (matrix products sum in another order): tests/test_compiled.py. */
+ * valid rows' indices and their number. A non-finite gyro value turns nothing. Given c_out
+ * (m x 6, else None), each of its rows gets the rotation error's covariance from p (8 x 8):
+ * xx, xy, xz, yy, yz, zz. Equal to the twin to rounding (matrix products sum in another
+ * order): tests/test_compiled.py. */
 static PyObject *orient_chunk(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
-    if (nargs != 10) {
-        PyErr_SetString(PyExc_TypeError, "orient_chunk() takes 10 arguments");
+    if (nargs != 12) {
+        PyErr_SetString(PyExc_TypeError, "orient_chunk() takes 12 arguments");
         return NULL;
     }
     const double dt = PyFloat_AsDouble(args[2]);
@@ -413,22 +416,30 @@ static PyObject *orient_chunk(PyObject *self, PyObject *const *args, Py_ssize_t 
     if (PyErr_Occurred())
         return NULL;
     const int has_accel = args[4] != Py_None;
-    Py_buffer gb, bb, qb, ab, ob, s1, s2, s3;
-    Py_buffer *views[8] = {&gb, &bb, &qb, &ob, &s1, &s2, &s3, &ab};
-    PyObject *objs[8] = {args[0], args[1], args[3], args[6], args[7], args[8], args[9], args[4]};
-    const int writable[8] = {0, 0, 0, 1, 1, 1, 1, 0};
-    const int count = has_accel ? 8 : 7;
+    const int has_cov = args[11] != Py_None;
+    Py_buffer gb, bb, qb, ab, ob, s1, s2, s3, pb, cb;
+    Py_buffer *views[10] = {&gb, &bb, &qb, &ob, &s1, &s2, &s3, &pb, &ab, &cb};
+    PyObject *objs[10] = {args[0], args[1], args[3], args[6],  args[7],
+                          args[8], args[9], args[10], args[4], args[11]};
+    const int writable[10] = {0, 0, 0, 1, 1, 1, 1, 0, 0, 1};
+    const int present[10] = {1, 1, 1, 1, 1, 1, 1, 1, has_accel, has_cov};
     int got = 0;
-    for (; got < count; got++)
+    for (; got < 10; got++) {
+        if (!present[got]) {
+            views[got]->obj = NULL;
+            continue;
+        }
         if (!get_buffer(objs[got], views[got], 0, writable[got], "orient_chunk"))
             break;
+    }
     PyObject *result = NULL;
     const char *err = NULL;
-    if (got < count)
+    if (got < 10)
         goto done;
     const Py_ssize_t m = gb.len / 24;
     if (gb.len != m * 24 || bb.len != 24 || qb.len != 32 || ob.len != m * 32 || s1.len != 128 ||
-        s2.len != 384 || s3.len != 384 || (has_accel && ab.len != m * 24)) {
+        s2.len != 384 || s3.len != 384 || (has_accel && ab.len != m * 24) || pb.len != 512 ||
+        (has_cov && cb.len != m * 48)) {
         err = "orient_chunk: arrays of the wrong sizes";
         goto done;
     }
@@ -484,11 +495,19 @@ static PyObject *orient_chunk(PyObject *self, PyObject *const *args, Py_ssize_t 
     double qn[4];
     quat_left(q, e, qn);
     const double norm = sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3]);
+    if (has_cov) {
+        const double *p = (const double *)pb.buf;
+        double *co = (double *)cb.buf;
+        const double row[6] = {p[0], p[1], p[2], p[9], p[10], p[18]};
+        for (Py_ssize_t i = 0; i < m; i++)
+            memcpy(co + 6 * i, row, sizeof row);
+    }
     result = Py_BuildValue("(ddddd" "l)", qn[0] / norm, qn[1] / norm, qn[2] / norm, qn[3] / norm,
                            kn, k);
 done:
     while (got-- > 0)
-        PyBuffer_Release(views[got]);
+        if (views[got]->obj != NULL)
+            PyBuffer_Release(views[got]);
     if (err != NULL) {
         PyErr_SetString(PyExc_ValueError, err);
         Py_CLEAR(result);

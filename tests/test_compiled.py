@@ -516,18 +516,21 @@ def test_orient_chunk_matches_numpy(
         f.q, f.b = q0.copy(), rng.normal(0, 0.01, 3) if use_kernel else runs[0][6]
         f._iv.steps = steps
         f._iv.qq[:] = 1.0
-        q_out = np.empty((m, 4))
+        f.P = np.arange(64.0).reshape(8, 8)
+        q_out, c_out = np.empty((m, 4)), np.empty((m, 6))
         saved, ekf._kernels = ekf._kernels, ekf._kernels if use_kernel else None
         try:
-            f._chunk(gyro, accel if with_accel else None, 0.001, q_out)
+            f._chunk(gyro, accel if with_accel else None, 0.001, q_out, c_out)
         finally:
             ekf._kernels = saved
         iv = f._iv
-        runs.append((q_out, f.q, iv.qq, iv.qqa, iv.kqqa, (iv.n, iv.kn, iv.steps, iv.t), f.b))
+        runs.append((q_out, f.q, iv.qq, iv.qqa, iv.kqqa, (iv.n, iv.kn, iv.steps, iv.t), f.b, c_out))
     fast, slow = runs
     for a, b in zip(fast[:5], slow[:5], strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * max(1.0, np.abs(b).max()))
     assert fast[5] == slow[5]
+    # every row: the rotation error's covariance (xx, xy, xz, yy, yz, zz) of the 8 x 8
+    assert fast[7].tolist() == slow[7].tolist() == [[0.0, 1.0, 2.0, 9.0, 10.0, 18.0]] * m
 
 
 # --- the orientation filter's correction ---------------------------------------------------------

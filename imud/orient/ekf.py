@@ -266,12 +266,17 @@ class OrientationFilter:
             # of a chunk (a few dozen array operations) is what bounds the cost per sample
             left = per - self._iv.steps
             j = n if n - i <= left + per else i + max(left, 1)
-            self._chunk(gyro[i:j], None if accel is None else accel[i:j], dt, q_out[i:j])
+            if i == 0 and j == n:  # (slices are NumPy calls too)
+                g, a, qo, co = gyro, accel, q_out, c_out
+            else:
+                g, qo, co = gyro[i:j], q_out[i:j], c_out[i:j]
+                a = None if accel is None else accel[i:j]
+            self._chunk(g, a, dt, qo, co)
             if mag is not None and self.use_mag:
-                self._mag_chunk(mag[i:j], q_out[i:j])
+                self._mag_chunk(mag[i:j], qo)
             if self._iv.steps >= per:
                 self._correct()
-            c_out[i:j] = self._cov6()
+                co[:] = self._cov6()
             i = j
         return q_out, c_out
 
@@ -355,12 +360,18 @@ class OrientationFilter:
         self.P[:, 3:6] = 0.0
         self.P[3:6, 3:6] = _I3 * sigma**2
 
-    def _chunk(self, gyro: F64, accel: F64 | None, dt: float, q_out: F64) -> None:
+    def _chunk(
+        self, gyro: F64, accel: F64 | None, dt: float, q_out: F64, c_out: F64 | None = None
+    ) -> None:
+        """Integrate a chunk: each sample's orientation into `q_out` and, given `c_out`, the
+        covariance as it stands into each of its rows (`_cov6`)."""
         m = gyro.shape[0]
         if m == 0:
             return
         if _kernels is None:
             self._chunk_numpy(gyro, accel, dt, q_out)
+            if c_out is not None:
+                c_out[:] = self._cov6()
             return
         iv = self._iv
         f8 = np.float64  # (the kernel reads float64s: a no-op for them, a copy of anything else)
@@ -375,6 +386,8 @@ class OrientationFilter:
             iv.qq,
             iv.qqa,
             iv.kqqa,
+            self.P,
+            c_out,
         )
         if k:
             iv.kn += kn
