@@ -392,16 +392,16 @@ static void quat_left(const double q[4], const double e[4], double out[4]) {
     out[3] = z * e[0] - y * e[1] + x * e[2] + w * e[3];
 }
 
-/* orient_chunk(gyro, b, dt, q, accel, steps, q_out, qq, qqa, kqqa, p, c_out)
- *     -> (w, x, y, z, kn, k)
+/* orient_chunk(gyro, b, dt, q, accel, steps, q_out, qq, qqa, kqqa, p, c_out) -> (kn, k)
  *
  * The orientation filter's integration of one chunk (orient.ekf.OrientationFilter._chunk, its
  * NumPy twin): each sample's orientation from the gyro less its bias (first order, from the
  * chunk's start) into q_out (m x 4); the interval's sums of q outer q (qq, 16), and with a valid
  * accelerometer row of (q outer q) outer a (qqa, 16 x 3) and the same weighted by the sample's
- * index in the interval (kqqa; the interval had `steps` samples before the chunk). Returns the
- * orientation at the chunk's end (second order: Bortz's coning term), unit; the sum of the
- * valid rows' indices and their number. A non-finite gyro value turns nothing. Given c_out
+ * index in the interval (kqqa; the interval had `steps` samples before the chunk). The
+ * orientation at the chunk's end (second order: Bortz's coning term), unit, goes into q; it
+ * returns the sum of the valid rows' indices and their number. gyro and accel must be float64
+ * and C-contiguous (TypeError or ValueError otherwise: the caller converts and calls again). A non-finite gyro value turns nothing. Given c_out
  * (m x 6, else None), each of its rows gets the rotation error's covariance from p (8 x 8):
  * xx, xy, xz, yy, yz, zz. Equal to the twin to rounding (matrix products sum in another
  * order): tests/test_compiled.py. */
@@ -421,7 +421,7 @@ static PyObject *orient_chunk(PyObject *self, PyObject *const *args, Py_ssize_t 
     Py_buffer *views[10] = {&gb, &bb, &qb, &ob, &s1, &s2, &s3, &pb, &ab, &cb};
     PyObject *objs[10] = {args[0], args[1], args[3], args[6],  args[7],
                           args[8], args[9], args[10], args[4], args[11]};
-    const int writable[10] = {0, 0, 0, 1, 1, 1, 1, 0, 0, 1};
+    const int writable[10] = {0, 0, 1, 1, 1, 1, 1, 0, 0, 1};
     const int present[10] = {1, 1, 1, 1, 1, 1, 1, 1, has_accel, has_cov};
     int got = 0;
     for (; got < 10; got++) {
@@ -429,7 +429,9 @@ static PyObject *orient_chunk(PyObject *self, PyObject *const *args, Py_ssize_t 
             views[got]->obj = NULL;
             continue;
         }
-        if (!get_buffer(objs[got], views[got], 0, writable[got], "orient_chunk"))
+        const int input = got == 0 || got == 8; /* gyro, accel: the caller's arrays */
+        if (input ? !get_f64(objs[got], views[got], "orient_chunk")
+                  : !get_buffer(objs[got], views[got], 0, writable[got], "orient_chunk"))
             break;
     }
     PyObject *result = NULL;
@@ -502,8 +504,10 @@ static PyObject *orient_chunk(PyObject *self, PyObject *const *args, Py_ssize_t 
         for (Py_ssize_t i = 0; i < m; i++)
             memcpy(co + 6 * i, row, sizeof row);
     }
-    result = Py_BuildValue("(ddddd" "l)", qn[0] / norm, qn[1] / norm, qn[2] / norm, qn[3] / norm,
-                           kn, k);
+    double *qw = (double *)qb.buf;
+    for (int d = 0; d < 4; d++)
+        qw[d] = qn[d] / norm;
+    result = Py_BuildValue("(dl)", kn, k);
 done:
     while (got-- > 0)
         if (views[got]->obj != NULL)
@@ -939,11 +943,18 @@ static PyObject *track_windows(PyObject *self, PyObject *const *args, Py_ssize_t
     }
     const int has_accel = args[1] != Py_None;
     Py_buffer gb, ab, sb, ob;
-    if (!get_buffer(args[0], &gb, 0, 0, "track_windows gyro"))
+    if (!get_f64(args[0], &gb, "track_windows gyro"))
         return NULL;
     const Py_ssize_t n = gb.len / 24;
-    if (has_accel && !get_buffer(args[1], &ab, n * 24, 0, "track_windows accel")) {
+    if (has_accel && !get_f64(args[1], &ab, "track_windows accel")) {
         PyBuffer_Release(&gb);
+        return NULL;
+    }
+    if (gb.len != n * 24 || (has_accel && ab.len != n * 24)) {
+        PyBuffer_Release(&gb);
+        if (has_accel)
+            PyBuffer_Release(&ab);
+        PyErr_SetString(PyExc_ValueError, "track_windows: gyro and accel of n x 3 each");
         return NULL;
     }
     if (!get_buffer(args[3], &sb, TW_STATE * 8, 1, "track_windows state")) {

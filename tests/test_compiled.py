@@ -533,6 +533,35 @@ def test_orient_chunk_matches_numpy(
     assert fast[7].tolist() == slow[7].tolist() == [[0.0, 1.0, 2.0, 9.0, 10.0, 18.0]] * m
 
 
+@pytest.mark.parametrize(
+    "form",
+    [
+        lambda x: x.astype(np.float32),
+        np.asfortranarray,
+        lambda x: np.repeat(x, 2, axis=0)[::2],  # a strided view
+    ],
+    ids=["float32", "fortran", "strided"],
+)
+def test_orient_and_track_kernels_take_any_float_rows(form: Any) -> None:
+    """Rows the kernels cannot read in place (another dtype, another layout) go through a
+    float64 copy: the same results as the float64 rows of the same values."""
+    _kernel("imud._kernels")
+    rng = np.random.default_rng(4)
+    gyro = rng.normal(0.0, 0.5, size=(40, 3))
+    accel = rng.normal(0.0, 0.3, size=(40, 3)) + np.array([0.0, 0.0, 9.81])
+    runs = []
+    for g, a in ((form(gyro), form(accel)), (form(gyro).astype(float), form(accel).astype(float))):
+        f = ekf.OrientationFilter(ekf.NoiseModel(1e-4, 1e-3))
+        q_out, c_out = np.empty((40, 4)), np.empty((40, 6))
+        f._chunk(g, a, 0.001, q_out, c_out)
+        t = track.GyroBiasTracker(GyroBiasTracking())
+        rows = t._windows(g, a, 8)
+        runs.append((q_out, f.q, f._iv.qqa, np.array(rows)))
+    for x, y in zip(*runs, strict=True):
+        assert x.tolist() == y.tolist()
+    assert len(runs[0][3]) == 5
+
+
 # --- the orientation filter's correction ---------------------------------------------------------
 
 

@@ -219,17 +219,15 @@ class GyroBiasTracker:
         """The windows this batch completes, as rows (`ROW`), from the compiled kernel, which
         keeps the running window's sums instead of the samples."""
         assert _kernels is not None
-        f8 = np.float64  # (a no-op for float64s, a copy of anything else)
         cap = gyro.shape[0] // m + 1
         if self._out.shape[0] < cap:
             self._out = np.empty((cap, ROW))
-        k: int = _kernels.track_windows(
-            np.ascontiguousarray(gyro, dtype=f8),
-            None if accel is None else np.ascontiguousarray(accel, dtype=f8),
-            m,
-            self._state,
-            self._out,
-        )
+        try:  # float64 rows are read in place
+            k: int = _kernels.track_windows(gyro, accel, m, self._state, self._out)
+        except (TypeError, ValueError, BufferError):  # another dtype or layout: a copy
+            g = np.ascontiguousarray(gyro, dtype=np.float64)
+            a = None if accel is None else np.ascontiguousarray(accel, dtype=np.float64)
+            k = _kernels.track_windows(g, a, m, self._state, self._out)
         if not k:  # most batches: the window goes on
             return []
         rows: list[list[float]] = self._out[:k].tolist()

@@ -374,27 +374,20 @@ class OrientationFilter:
                 c_out[:] = self._cov6()
             return
         iv = self._iv
-        f8 = np.float64  # (the kernel reads float64s: a no-op for them, a copy of anything else)
-        w, x, y, z, kn, k = _kernels.orient_chunk(
-            np.ascontiguousarray(gyro, dtype=f8),
-            self.b,  # (the filter's own float64 arrays)
-            dt,
-            self.q,
-            None if accel is None else np.ascontiguousarray(accel, dtype=f8),
-            float(iv.steps),
-            q_out,
-            iv.qq,
-            iv.qqa,
-            iv.kqqa,
-            self.P,
-            c_out,
-        )
+        args = [gyro, self.b, dt, self.q, accel, float(iv.steps), q_out]
+        args += [iv.qq, iv.qqa, iv.kqqa, self.P, c_out]
+        try:  # the kernel reads float64 rows in place, and writes the chunk's end into self.q
+            kn, k = _kernels.orient_chunk(*args)
+        except (TypeError, ValueError, BufferError):  # another dtype or layout: a copy
+            args[0] = np.ascontiguousarray(gyro, dtype=np.float64)
+            if accel is not None:
+                args[4] = np.ascontiguousarray(accel, dtype=np.float64)
+            kn, k = _kernels.orient_chunk(*args)
         if k:
             iv.kn += kn
             iv.n += k
         iv.steps += m
         iv.t += m * dt
-        self.q = np.array([w, x, y, z])
 
     def _chunk_numpy(self, gyro: F64, accel: F64 | None, dt: float, q_out: F64) -> None:
         """`_chunk` in NumPy: the compiled kernel's twin and reference."""
