@@ -568,65 +568,65 @@ static void release_all(Py_buffer *views, int count) {
         PyBuffer_Release(&views[count]);
 }
 
-/* orient_sums(qq, qqa, kqqa, out): out (15) = the rotation sum from qq, then the rotated
- * specific force's sums from qqa and kqqa (16 x 3 each). kalman.interval_sums. */
+/* orient_sums(qqa, kqqa) -> (6 floats): an interval's sums of rotated specific force, plain
+ * then index-weighted, from its (q outer q) outer a sums (16 x 3 each). kalman.force_sums. */
 static PyObject *orient_sums(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
-    if (nargs != 4) {
-        PyErr_SetString(PyExc_TypeError, "orient_sums() takes 4 arguments");
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "orient_sums() takes 2 arguments");
         return NULL;
     }
-    Py_buffer v[4];
-    const Py_ssize_t sizes[4] = {16, 48, 48, 15};
-    const int wr[4] = {0, 0, 0, 1};
-    if (!get_doubles(args, v, sizes, wr, 4, "orient_sums"))
+    Py_buffer v[2];
+    const Py_ssize_t sizes[2] = {48, 48};
+    const int wr[2] = {0, 0};
+    if (!get_doubles(args, v, sizes, wr, 2, "orient_sums"))
         return NULL;
-    const double *qq = v[0].buf, *qqa = v[1].buf, *kqqa = v[2].buf;
-    double *out = v[3].buf;
-    rot_from_qq(qq, 1, out);
+    double out[6] = {0, 0, 0, 0, 0, 0};
     for (int s = 0; s < 2; s++) {
-        const double *src = s ? kqqa : qqa;
-        double *dst = out + 9 + 3 * s;
-        dst[0] = dst[1] = dst[2] = 0.0;
+        const double *src = v[s].buf;
         for (int j = 0; j < 3; j++) {
             double r[9];
             rot_from_qq(src + j, 3, r);
             for (int i = 0; i < 3; i++)
-                dst[i] += r[3 * i + j];
+                out[3 * s + i] += r[3 * i + j];
         }
     }
-    release_all(v, 4);
-    Py_RETURN_NONE;
+    release_all(v, 2);
+    return Py_BuildValue("(dddddd)", out[0], out[1], out[2], out[3], out[4], out[5]);
 }
 
-/* orient_propagate(p, turn, rho, q_density, t, linear_var): p = phi p phi^T + Q in place, phi
- * the identity with -turn in the rotation-bias block and rho on the linear acceleration's
- * diagonal. kalman.propagate. */
+/* orient_propagate(p, qq, scale, rho, q_density, t, linear_var, a): p = phi p phi^T + Q in
+ * place, phi the identity with -scale x (the rotation sum from qq) in the rotation-bias block
+ * and rho on the linear acceleration's diagonal; the linear acceleration a (2) decays by rho in
+ * place. kalman.propagate. */
 static PyObject *orient_propagate(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
-    if (nargs != 6) {
-        PyErr_SetString(PyExc_TypeError, "orient_propagate() takes 6 arguments");
+    if (nargs != 8) {
+        PyErr_SetString(PyExc_TypeError, "orient_propagate() takes 8 arguments");
         return NULL;
     }
-    const double rho = PyFloat_AsDouble(args[2]);
-    const double t = PyFloat_AsDouble(args[4]);
-    const double lvar = PyFloat_AsDouble(args[5]);
+    const double scale = PyFloat_AsDouble(args[2]);
+    const double rho = PyFloat_AsDouble(args[3]);
+    const double t = PyFloat_AsDouble(args[5]);
+    const double lvar = PyFloat_AsDouble(args[6]);
     if (PyErr_Occurred())
         return NULL;
-    Py_buffer v[3];
-    PyObject *objs[3] = {args[0], args[1], args[3]};
-    const Py_ssize_t sizes[3] = {NS * NS, 9, NS};
-    const int wr[3] = {1, 0, 0};
-    if (!get_doubles(objs, v, sizes, wr, 3, "orient_propagate"))
+    Py_buffer v[4];
+    PyObject *objs[4] = {args[0], args[1], args[4], args[7]};
+    const Py_ssize_t sizes[4] = {NS * NS, 16, NS, 2};
+    const int wr[4] = {1, 0, 0, 1};
+    if (!get_doubles(objs, v, sizes, wr, 4, "orient_propagate"))
         return NULL;
-    double *p = v[0].buf;
-    const double *turn = v[1].buf, *qd = v[2].buf;
+    double *p = v[0].buf, *a = v[3].buf;
+    const double *qd = v[2].buf;
+    double turn[9];
+    rot_from_qq(v[1].buf, 1, turn);
     double phi[NS][NS] = {{0}}, tmp[NS][NS];
     for (int i = 0; i < NS; i++)
         phi[i][i] = 1.0;
     for (int i = 0; i < 3; i++)
         for (int j = 0; j < 3; j++)
-            phi[i][3 + j] = -turn[3 * i + j];
+            phi[i][3 + j] = -(turn[3 * i + j] * scale);
     phi[6][6] = phi[7][7] = rho;
     for (int i = 0; i < NS; i++)
         for (int j = 0; j < NS; j++) {
@@ -647,36 +647,41 @@ static PyObject *orient_propagate(PyObject *self, PyObject *const *args, Py_ssiz
     const double ql = lvar * (1.0 - rho * rho);
     p[NS * 6 + 6] += ql;
     p[NS * 7 + 7] += ql;
-    release_all(v, 3);
+    a[0] *= rho;
+    a[1] *= rho;
+    release_all(v, 4);
     Py_RETURN_NONE;
 }
 
-/* orient_gravity_h(p, turn, g, h) -> trace(h p h^T): gravity's measurement matrix (2 x 8) into
- * h. kalman.gravity_h. */
+/* orient_gravity_h(p, qq, scale, g, h) -> trace(h p h^T): gravity's measurement matrix (2 x 8)
+ * into h, its bias columns through scale x (the rotation sum from qq). kalman.gravity_h. */
 static PyObject *orient_gravity_h(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
-    if (nargs != 4) {
-        PyErr_SetString(PyExc_TypeError, "orient_gravity_h() takes 4 arguments");
+    if (nargs != 5) {
+        PyErr_SetString(PyExc_TypeError, "orient_gravity_h() takes 5 arguments");
         return NULL;
     }
-    const double g = PyFloat_AsDouble(args[2]);
+    const double scale = PyFloat_AsDouble(args[2]);
+    const double g = PyFloat_AsDouble(args[3]);
     if (PyErr_Occurred())
         return NULL;
     Py_buffer v[3];
-    PyObject *objs[3] = {args[0], args[1], args[3]};
-    const Py_ssize_t sizes[3] = {NS * NS, 9, 2 * NS};
+    PyObject *objs[3] = {args[0], args[1], args[4]};
+    const Py_ssize_t sizes[3] = {NS * NS, 16, 2 * NS};
     const int wr[3] = {0, 0, 1};
     if (!get_doubles(objs, v, sizes, wr, 3, "orient_gravity_h"))
         return NULL;
-    const double *p = v[0].buf, *turn = v[1].buf;
+    const double *p = v[0].buf;
     double *h = v[2].buf;
+    double turn[9];
+    rot_from_qq(v[1].buf, 1, turn);
     memset(h, 0, 2 * NS * sizeof(double));
     /* gm = [[0, -g, 0], [g, 0, 0]]: gm x = (-g x1, g x0) */
     h[1] = -g;
     h[NS + 0] = g;
     for (int j = 0; j < 3; j++) {
-        h[3 + j] = -g * turn[3 + j];
-        h[NS + 3 + j] = g * turn[j];
+        h[3 + j] = -g * (turn[3 + j] * scale);
+        h[NS + 3 + j] = g * (turn[j] * scale);
     }
     h[6] = 1.0;
     h[NS + 7] = 1.0;
@@ -728,17 +733,40 @@ static int small_inverse(int d, const double s[3][3], double inv[3][3]) {
     return 1;
 }
 
-/* orient_update(p, h, y, r, gate, learn, consistent, up, keep_heading, dx) -> accepted
+/* Up to three floats from a tuple (or any sequence); their number, or -1 with an error set. */
+static int small_floats(PyObject *obj, double out[3], const char *what) {
+    PyObject *seq = PySequence_Fast(obj, what);
+    if (seq == NULL)
+        return -1;
+    const Py_ssize_t n = PySequence_Fast_GET_SIZE(seq);
+    if (n < 1 || n > 3) {
+        Py_DECREF(seq);
+        PyErr_Format(PyExc_ValueError, "%s: 1 to 3 values", what);
+        return -1;
+    }
+    for (Py_ssize_t i = 0; i < n; i++)
+        out[i] = PyFloat_AsDouble(PySequence_Fast_GET_ITEM(seq, i));
+    Py_DECREF(seq);
+    return PyErr_Occurred() ? -1 : (int)n;
+}
+
+/* orient_update(p, h, y, r, gate, learn, consistent, q, keep_heading, b, a)
+ *     -> (w, x, y, z) or None
  *
- * kalman.update: a gated Kalman update of p (8 x 8, in place) by y (d <= 3) through h (d x 8)
- * with noise r (d x d); the correction into dx (8). learn: 0 all, 1 the bias across the body's
- * vertical `up`, 2 along it, 3 no bias, 4 all if the normalised innovation is within
- * `consistent` else no bias. Below "all" the gain of what is left out is zero (and the
- * heading's too with keep_heading) and the covariance takes Joseph's form. */
+ * kalman.update: a gated Kalman update of p (8 x 8, in place) by the innovation y (a tuple of
+ * d <= 3 floats) through h (d x 8) with diagonal noise r (a tuple of d variances). Accepted, it
+ * turns the orientation q (4, in place) by the world-frame correction e = exp(dtheta), q = e x q
+ * normalised, adds the bias's correction to b (3) and the linear acceleration's to a (2), in
+ * place, and returns e; rejected (the chi-squared
+ * gate, or a singular innovation covariance), it changes nothing and returns None. learn: 0
+ * all, 1 the bias across the body's vertical (from the orientation q), 2 along it, 3 no bias, 4
+ * all if the normalised innovation is within `consistent` else no bias. Below "all" the gain of
+ * what is left out is zero (and the heading's too with keep_heading) and the covariance takes
+ * Joseph's form. */
 static PyObject *orient_update(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     (void)self;
-    if (nargs != 10) {
-        PyErr_SetString(PyExc_TypeError, "orient_update() takes 10 arguments");
+    if (nargs != 11) {
+        PyErr_SetString(PyExc_TypeError, "orient_update() takes 11 arguments");
         return NULL;
     }
     const double gate = PyFloat_AsDouble(args[4]);
@@ -747,30 +775,23 @@ static PyObject *orient_update(PyObject *self, PyObject *const *args, Py_ssize_t
     const int keep_heading = PyObject_IsTrue(args[8]);
     if (PyErr_Occurred() || keep_heading < 0)
         return NULL;
-    Py_buffer yb;
-    if (!get_buffer(args[2], &yb, 0, 0, "orient_update y"))
+    double y[3], rd[3];
+    const int d = small_floats(args[2], y, "orient_update y");
+    if (d < 0)
         return NULL;
-    const int d = (int)(yb.len / (Py_ssize_t)sizeof(double));
-    PyBuffer_Release(&yb);
-    if (d < 1 || d > 3) {
-        PyErr_SetString(PyExc_ValueError, "orient_update: an innovation of 1 to 3 values");
-        return NULL;
-    }
-    const int has_up = args[7] != Py_None;
-    if ((learn == 1 || learn == 2) && !has_up) {
-        PyErr_SetString(PyExc_ValueError, "orient_update: learning along the vertical needs up");
+    if (small_floats(args[3], rd, "orient_update r") != d) {
+        if (!PyErr_Occurred())
+            PyErr_SetString(PyExc_ValueError, "orient_update: r and y of one length");
         return NULL;
     }
-    Py_buffer v[6];
-    PyObject *objs[6] = {args[0], args[1], args[2], args[3], args[9], args[7]};
-    const Py_ssize_t sizes[6] = {NS * NS, d * NS, d, d * d, NS, 3};
-    const int wr[6] = {1, 0, 0, 0, 1, 0};
-    const int count = has_up ? 6 : 5;
-    if (!get_doubles(objs, v, sizes, wr, count, "orient_update"))
+    Py_buffer v[5];
+    PyObject *objs[5] = {args[0], args[1], args[7], args[9], args[10]};
+    const Py_ssize_t sizes[5] = {NS * NS, d * NS, 4, 3, 2};
+    const int wr[5] = {1, 0, 1, 1, 1};
+    if (!get_doubles(objs, v, sizes, wr, 5, "orient_update"))
         return NULL;
-    double *p = v[0].buf, *dx = v[4].buf;
-    const double *h = v[1].buf, *y = v[2].buf, *r = v[3].buf;
-    const double *up = has_up ? v[5].buf : NULL;
+    double *p = v[0].buf, *b = v[3].buf, *a = v[4].buf, *q = v[2].buf;
+    const double *h = v[1].buf;
     double ph[NS][3], s[3][3], si[3][3], k[NS][3];
     for (int i = 0; i < NS; i++)
         for (int j = 0; j < d; j++) {
@@ -784,7 +805,7 @@ static PyObject *orient_update(PyObject *self, PyObject *const *args, Py_ssize_t
             double acc = 0.0;
             for (int m = 0; m < NS; m++)
                 acc += h[NS * i + m] * ph[m][j];
-            s[i][j] = acc + r[d * i + j];
+            s[i][j] = acc + (i == j ? rd[i] : 0.0);
         }
     int ok = small_inverse(d, s, si);
     double nis = 0.0;
@@ -794,6 +815,7 @@ static PyObject *orient_update(PyObject *self, PyObject *const *args, Py_ssize_t
                 nis += y[i] * si[i][j] * y[j];
         ok = nis <= gate;
     }
+    double dx[NS];
     if (ok) {
         for (int i = 0; i < NS; i++)
             for (int j = 0; j < d; j++) {
@@ -819,6 +841,10 @@ static PyObject *orient_update(PyObject *self, PyObject *const *args, Py_ssize_t
                     for (int j = 0; j < d; j++)
                         k[i][j] = 0.0;
             } else {
+                /* the world's vertical in the body frame: the third row of R(q) */
+                const double qw = q[0], qx = q[1], qy = q[2], qz = q[3];
+                const double up[3] = {2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx),
+                                      1 - 2 * (qx * qx + qy * qy)};
                 for (int j = 0; j < d; j++) {
                     const double w = up[0] * k[3][j] + up[1] * k[4][j] + up[2] * k[5][j];
                     for (int i = 0; i < 3; i++) {
@@ -830,7 +856,7 @@ static PyObject *orient_update(PyObject *self, PyObject *const *args, Py_ssize_t
             if (keep_heading)
                 for (int j = 0; j < d; j++)
                     k[2][j] = 0.0;
-            double ikh[NS][NS], t1[NS][NS], kr[NS][3];
+            double ikh[NS][NS], t1[NS][NS];
             for (int i = 0; i < NS; i++)
                 for (int j = 0; j < NS; j++) {
                     double acc = 0.0;
@@ -846,19 +872,12 @@ static PyObject *orient_update(PyObject *self, PyObject *const *args, Py_ssize_t
                     t1[i][j] = acc;
                 }
             for (int i = 0; i < NS; i++)
-                for (int j = 0; j < d; j++) {
-                    double acc = 0.0;
-                    for (int m = 0; m < d; m++)
-                        acc += k[i][m] * r[d * m + j];
-                    kr[i][j] = acc;
-                }
-            for (int i = 0; i < NS; i++)
                 for (int j = 0; j < NS; j++) {
                     double acc = 0.0, acc2 = 0.0;
                     for (int m = 0; m < NS; m++)
                         acc += t1[i][m] * ikh[j][m];
                     for (int m = 0; m < d; m++)
-                        acc2 += kr[i][m] * k[j][m];
+                        acc2 += k[i][m] * rd[m] * k[j][m];
                     np_[i][j] = acc + acc2;
                 }
         }
@@ -871,9 +890,31 @@ static PyObject *orient_update(PyObject *self, PyObject *const *args, Py_ssize_t
         for (int i = 0; i < NS; i++)
             for (int j = 0; j < NS; j++)
                 p[NS * i + j] = 0.5 * (np_[i][j] + np_[j][i]);
+        for (int i = 0; i < 3; i++)
+            b[i] += dx[3 + i];
+        a[0] += dx[6];
+        a[1] += dx[7];
     }
-    release_all(v, count);
-    return PyBool_FromLong(ok);
+    double e[4] = {1.0, 0.0, 0.0, 0.0};
+    if (ok) {
+        /* ekf.OrientationFilter._rotate_world */
+        const double th = sqrt(dx[0] * dx[0] + dx[1] * dx[1] + dx[2] * dx[2]);
+        const double sc = th > 1e-12 ? sin(0.5 * th) / th : 0.5;
+        e[0] = cos(0.5 * th);
+        e[1] = dx[0] * sc;
+        e[2] = dx[1] * sc;
+        e[3] = dx[2] * sc;
+        double qn[4];
+        quat_left(e, q, qn);
+        const double norm =
+            sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3]);
+        for (int i = 0; i < 4; i++)
+            q[i] = qn[i] / norm;
+    }
+    release_all(v, 5);
+    if (!ok)
+        Py_RETURN_NONE;
+    return Py_BuildValue("(dddd)", e[0], e[1], e[2], e[3]);
 }
 
 /* --- the gyro-bias tracker's windows (calib.track, its NumPy twin) --- */
@@ -1052,7 +1093,7 @@ static PyMethodDef methods[] = {
     {"orient_chunk", (PyCFunction)(void (*)(void))orient_chunk, METH_FASTCALL,
      "The orientation filter's integration of one chunk of gyro samples."},
     {"orient_sums", (PyCFunction)(void (*)(void))orient_sums, METH_FASTCALL,
-     "An interval's rotation sum and rotated specific-force sums (orient.kalman)."},
+     "An interval's rotated specific-force sums (orient.kalman)."},
     {"orient_propagate", (PyCFunction)(void (*)(void))orient_propagate, METH_FASTCALL,
      "The orientation covariance over an interval, in place (orient.kalman)."},
     {"orient_gravity_h", (PyCFunction)(void (*)(void))orient_gravity_h, METH_FASTCALL,

@@ -595,8 +595,8 @@ def _spd(rng: np.random.Generator, n: int) -> np.ndarray:
 @FUZZ
 @given(st.integers(0, 2**32 - 1))
 def test_orient_sums_and_propagation_match_numpy(seed: int) -> None:
-    """An interval's sums (from the chunks' q outer q and its products with the specific force)
-    and the covariance's propagation over it: the kernel and NumPy agree to rounding."""
+    """An interval's specific-force sums and the covariance's propagation over it (the linear
+    acceleration decaying with it): the kernel and NumPy agree to rounding."""
     _kernel("imud._kernels")
     rng = np.random.default_rng(seed)
     q = rng.normal(size=(50, 4))
@@ -604,21 +604,26 @@ def test_orient_sums_and_propagation_match_numpy(seed: int) -> None:
     q2 = (q[:, :, None] * q[:, None, :]).reshape(50, 16)
     a = rng.normal(0.0, 3.0, size=(50, 3))
     qq, qqa, kqqa = q2.sum(axis=0), q2.T @ a, q2.T @ (a * np.arange(50)[:, None])
-    fast, slow, _, _ = _both(kalman.interval_sums, qq, qqa, kqqa)
-    _close(fast, slow)
-    # the rotation sum is what the quaternions' matrices add up to (an independent check)
+    fast, slow, _, _ = _both(kalman.force_sums, qqa, kqqa)
+    _close(np.array(fast), np.array(slow))
+    # the plain sum is the quaternions' rotations applied to the samples (an independent check)
     w, x, y, z = q.T
-    r00 = (w * w + x * x - y * y - z * z).sum()
-    r12 = (2 * (y * z - w * x)).sum()
-    assert fast[0] == pytest.approx(r00, rel=1e-12, abs=1e-12)
-    assert fast[5] == pytest.approx(r12, rel=1e-12, abs=1e-12)
+    rotated_x = (
+        (w * w + x * x - y * y - z * z) * a[:, 0]
+        + 2 * (x * y - w * z) * a[:, 1]
+        + 2 * (x * z + w * y) * a[:, 2]
+    ).sum()
+    assert fast[0] == pytest.approx(rotated_x, rel=1e-12, abs=1e-11)
 
     p = _spd(rng, 8)
-    turn = rng.normal(size=9) * 0.05
     density = np.exp(rng.uniform(-20.0, -8.0, size=8))
     rho, t, lvar = float(rng.uniform(0.5, 1.0)), float(rng.uniform(0.01, 0.5)), 0.01
-    _, _, (pf, *_), (ps, *_) = _both(kalman.propagate, p, turn, rho, density, t, lvar)
+    lin = rng.normal(size=2)
+    args = (p, qq, t / 50, rho, density, t, lvar, lin)
+    _, _, (pf, *_, af), (ps, *_, as_) = _both(kalman.propagate, *args)
     _close(pf, ps)
+    _close(af, as_)
+    assert af.tolist() == pytest.approx((lin * rho).tolist(), rel=1e-15)
 
 
 @FUZZ
@@ -638,60 +643,43 @@ def test_orient_update_matches_numpy(
     _kernel("imud._kernels")
     rng = np.random.default_rng(seed)
     p = _spd(rng, 8)
-    turn = rng.normal(size=9) * 0.05
+    qq = rng.normal(size=16)
     h2 = np.empty((2, 8))
-    fast, slow, (_, _, hf), (_, _, hs) = _both(kalman.gravity_h, p, turn, 9.81, h2)
+    fast, slow, (_, _, hf), (_, _, hs) = _both(kalman.gravity_h, p, qq, 0.01, 9.81, h2)
     _close(hf, hs)
     assert fast == pytest.approx(slow, rel=1e-12)
     h = hs if d == 2 else rng.normal(size=(d, 8))
     s = h @ p @ h.T
-    r = np.diag(np.exp(rng.uniform(-3.0, 1.0, size=d)) * float(np.trace(s)) / d)
-    y = rng.normal(size=d) * np.sqrt(np.diag(s + r)) * rng.uniform(0.5, 3.0)
-    up = rng.normal(size=3)
-    up /= np.linalg.norm(up)
-    dx = np.full(8, 7.0)
-    args = (p, h, y, r, gate, learn, 5.991, up, keep_heading, dx)
-    fast, slow, (pf, *_, dxf), (ps, *_, dxs) = _both(kalman.update, *args)
-    assert fast == slow
-    _close(pf, ps)
-    _close(dxf, dxs)
-    if not fast:
-        assert (pf == p).all() and (dxf == 7.0).all()
+    r = tuple((np.exp(rng.uniform(-3.0, 1.0, size=d)) * float(np.trace(s)) / d).tolist())
+    y = tuple((rng.normal(size=d) * np.sqrt(np.diag(s) + r) * rng.uniform(0.5, 3.0)).tolist())
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    b, lin = rng.normal(size=3), rng.normal(size=2)
+    args = (p, h, y, r, gate, learn, 5.991, q, keep_heading, b, lin)
+    fast, slow, (pf, _, qf, bf, af), (ps, _, qs, bs, as_) = _both(kalman.update, *args)
+    assert (fast is None) == (slow is None)
+    for x, y_ in ((pf, ps), (qf, qs), (bf, bs), (af, as_)):
+        _close(x, y_)
+    if fast is None:
+        assert (pf == p).all() and (qf == q).all() and (bf == b).all() and (af == lin).all()
     else:
-        assert np.allclose(pf, pf.T, rtol=0, atol=0)
+        _close(np.array(fast), np.array(slow))
+        assert (pf == pf.T).all()
+        assert float(qf @ qf) == pytest.approx(1.0, abs=1e-15)
 
 
 def test_orient_kernels_name_a_wrong_size() -> None:
-    """A covariance of the wrong size is a ValueError naming the kernel, not a crash."""
+    """A covariance of the wrong size, or an innovation and noise that do not match, is a
+    ValueError naming the kernel, not a crash."""
     k = _kernel("imud._kernels")
     with pytest.raises(ValueError, match="orient_propagate"):
-        k.orient_propagate(np.eye(7), np.zeros(9), 1.0, np.zeros(8), 0.1, 0.0)
+        k.orient_propagate(np.eye(7), np.zeros(16), 1.0, 1.0, np.zeros(8), 0.1, 0.0, np.zeros(2))
     with pytest.raises(ValueError, match="orient_update"):
-        k.orient_update(
-            np.eye(8),
-            np.zeros((4, 8)),
-            np.zeros(4),
-            np.eye(4),
-            1.0,
-            0,
-            1.0,
-            None,
-            False,
-            np.zeros(8),
-        )
-    with pytest.raises(ValueError, match="up"):
-        k.orient_update(
-            np.eye(8),
-            np.zeros((1, 8)),
-            np.zeros(1),
-            np.eye(1),
-            1.0,
-            1,
-            1.0,
-            None,
-            False,
-            np.zeros(8),
-        )
+        k.orient_update(np.eye(8), np.zeros((4, 8)), (0.0,) * 4, (1.0,) * 4, 1.0, 0, 1.0,
+                        np.ones(4), False, np.zeros(3), np.zeros(2))  # fmt: skip
+    with pytest.raises(ValueError, match="one length"):
+        k.orient_update(np.eye(8), np.zeros((2, 8)), (0.0, 0.0), (1.0,), 1.0, 0, 1.0,
+                        np.ones(4), False, np.zeros(3), np.zeros(2))  # fmt: skip
 
 
 # --- the gyro-bias tracker's windows -------------------------------------------------------------

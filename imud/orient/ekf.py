@@ -35,7 +35,7 @@ While the device rests, a still window's mean gyro is a direct measurement of th
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import StrEnum
 
 import numpy as np
@@ -76,6 +76,7 @@ INIT_TILT_SIGMA = math.radians(5.0)  # the first mean may hold linear accelerati
 INIT_HEADING_SIGMA = math.radians(15.0)  # and the tilt's error shows in the heading, 2-3x
 _I3 = np.eye(3)
 _COV6 = np.array([0, 1, 2, 9, 10, 18])  # xx, xy, xz, yy, yz, zz in the flattened 8 x 8
+_H_BIAS = np.hstack([np.zeros((3, 3)), np.eye(3), np.zeros((3, 2))])  # a still window's mean
 
 
 class OrientState(StrEnum):
@@ -173,20 +174,27 @@ def tilt_quaternion(accel: F64) -> F64:
 @dataclass
 class _Interval:
     """What one correction interval has gathered so far. Rotation matrices are summed as sums of
-    q outer q (`kalman.FORM` turns them into matrices at the correction), so a chunk adds two small
-    products and rotates nothing."""
+    q outer q (`kalman.FORM` turns them into matrices at the correction), so a chunk adds two
+    small products and rotates nothing. The sums are views of one buffer, zeroed in one call
+    after each correction."""
 
-    n: int = 0  # samples with a valid accelerometer reading
-    steps: int = 0  # samples integrated
-    t: float = 0.0  # seconds integrated
-    qq: F64 = field(default_factory=lambda: np.zeros(16))  # sum q outer q
-    qqa: F64 = field(default_factory=lambda: np.zeros((16, 3)))  # sum (q outer q) outer a
-    # the same weighted by each sample's index in the interval, and the sum of those indices:
-    # the two halves of the gravity window (`_gravity_window`)
-    kqqa: F64 = field(default_factory=lambda: np.zeros((16, 3)))
-    kn: float = 0.0
-    m_sum: F64 = field(default_factory=lambda: np.zeros(3))
-    m_n: int = 0
+    def __init__(self) -> None:
+        self._buf = np.zeros(16 + 48 + 48 + 3)
+        self.qq: F64 = self._buf[:16]  # sum q outer q
+        self.qqa: F64 = self._buf[16:64].reshape(16, 3)  # sum (q outer q) outer a
+        # the same weighted by each sample's index in the interval, and the sum of those
+        # indices: the two halves of the gravity window (`_gravity_window`)
+        self.kqqa: F64 = self._buf[64:112].reshape(16, 3)
+        self.m_sum: F64 = self._buf[112:]
+        self.reset()
+
+    def reset(self) -> None:
+        self._buf.fill(0.0)
+        self.n = 0  # samples with a valid accelerometer reading
+        self.steps = 0  # samples integrated
+        self.t = 0.0  # seconds integrated
+        self.kn = 0.0
+        self.m_n = 0
 
 
 class OrientationFilter:
@@ -235,6 +243,7 @@ class OrientationFilter:
         self._g_var = 0.0  # |a| about the reference's variance, in intervals gravity explained
         self._drifted_s = 0.0  # rejected in a row with |a| at gravity: the estimate drifted
         self._iv = _Interval()
+        self._h = np.empty((2, N_STATES))  # gravity's measurement matrix, made afresh each time
         # the last interval's half of the next gravity window: its world-frame specific force
         # weighted by a ramp rising to its end, the ramp's weight, its length (s)
         self._rise: tuple[Vec3, float, float] | None = None
@@ -435,13 +444,12 @@ class OrientationFilter:
         qn = left @ _quat_exp1(x, y, z)
         self.q = qn / math.sqrt(float(qn @ qn))
 
-    def _propagate(self, iv: _Interval, rotations: F64) -> None:
+    def _propagate(self, iv: _Interval) -> None:
         """The covariance over the interval: d(dtheta)/dt = -R db, white gyro noise, the bias's
-        random walk; `rotations` is the interval's sum of rotation matrices (9)."""
+        random walk; the linear acceleration decays."""
         rho = math.exp(-iv.t / self.linear_time_s)
-        turn = rotations * (iv.t / max(iv.steps, 1))
-        kalman.propagate(self.P, turn, rho, self._q_density, iv.t, self.linear_var)
-        self.a = self.a * rho
+        scale = iv.t / max(iv.steps, 1)
+        kalman.propagate(self.P, iv.qq, scale, rho, self._q_density, iv.t, self.linear_var, self.a)
 
     def _mag_chunk(self, mag: F64, q: F64) -> None:
         ok = np.isfinite(mag).all(axis=1)
@@ -460,21 +468,19 @@ class OrientationFilter:
     # --- correction ------------------------------------------------------------------------
     def _correct(self) -> None:
         iv = self._iv
-        self._iv = _Interval()
-        sums = kalman.interval_sums(iv.qq, iv.qqa, iv.kqqa)
-        self._propagate(iv, sums[:9])
+        self._propagate(iv)
         for mean, var in self._pending_zero_rate:
-            h = np.zeros((3, N_STATES))
-            h[:, 3:6] = _I3
-            self._update(h, mean - self.b, np.diag(var), 3)
+            y = (mean - self.b).tolist()
+            self._update(_H_BIAS, tuple(y), tuple(var.tolist()), 3)
             self.counters.zero_rate_updates += 1
         self._pending_zero_rate = []
         if iv.n:
-            self._accel_update(iv, sums)
+            self._accel_update(iv, kalman.force_sums(iv.qqa, iv.kqqa))
         if iv.m_n and self.use_mag:
             self._mag_update(iv)
+        iv.reset()
 
-    def _gravity_window(self, iv: _Interval, sums: F64) -> tuple[Vec3, float]:
+    def _gravity_window(self, iv: _Interval, sums: tuple[float, ...]) -> tuple[Vec3, float]:
         """The world-frame mean specific force under a triangle spanning the last interval and
         this one (rising through the last, falling through this), and how long before this
         interval's end the window's centre lies (s).
@@ -487,9 +493,8 @@ class OrientationFilter:
         filter averaging them, is a plain mean's, so the measurement noise stays as it was.
         The first interval after the start or a re-seed is a plain mean."""
         steps = max(iv.steps, 1)
-        v = sums.tolist()
-        total = v[9:12]
-        rising = (v[12] / steps, v[13] / steps, v[14] / steps)
+        total = sums[:3]
+        rising = (sums[3] / steps, sums[4] / steps, sums[5] / steps)
         w_rise = iv.kn / steps
         w_fall = iv.n - w_rise
         prev = self._rise
@@ -509,10 +514,10 @@ class OrientationFilter:
             (total[2] - rising[2] + vec[2]) / k,
         ), centre
 
-    def _accel_update(self, iv: _Interval, sums: F64) -> None:
-        """Gravity's correction from the interval's `sums` (`kalman.interval_sums`). Its scalar
-        steps are Python floats: as NumPy calls on 2- and 3-vectors they cost more than all
-        the matrix arithmetic (paced, after a sleep)."""
+    def _accel_update(self, iv: _Interval, sums: tuple[float, ...]) -> None:
+        """Gravity's correction from the interval's specific-force `sums` (`kalman.force_sums`).
+        Its scalar steps are Python floats: as NumPy calls on 2- and 3-vectors they cost more
+        than all the matrix arithmetic (paced, after a sleep)."""
         (mx, my, mz), centre = self._gravity_window(iv, sums)
         g = math.sqrt(mx * mx + my * my + mz * mz)
         g0 = self._g0 if self._g0 is not None else g
@@ -536,8 +541,8 @@ class OrientationFilter:
         var = max(var, self._white_var)
         # the error at the window's centre: the end's, plus the turn the bias made since (the
         # body's rotation over the interval taken as steady)
-        h = np.empty((2, N_STATES))
-        hph = kalman.gravity_h(self.P, sums[:9] * (centre / max(iv.steps, 1)), g, h)
+        h = self._h
+        hph = kalman.gravity_h(self.P, iv.qq, centre / max(iv.steps, 1), g, h)
         # covariance matching: the innovations' spread beyond what the filter predicts is the
         # platform's linear acceleration (or vibration the average did not cancel); its
         # variance follows, within [LINEAR_FLOOR, linear_max], rejected intervals included
@@ -558,8 +563,7 @@ class OrientationFilter:
             learn = Learn.ALL
         else:
             learn = Learn.HORIZONTAL
-        y = np.array([yx, yy])
-        if self._update(h, y, np.array([[var, 0.0], [0.0, var]]), 2, learn):
+        if self._update(h, (yx, yy), (var, var), 2, learn):
             # the reference follows |a| slowly, from the intervals gravity explained: a
             # horizontal acceleration only ever adds to |a|, so a car's manoeuvres would raise
             # it, and every steady interval after them would look accelerated
@@ -619,40 +623,34 @@ class OrientationFilter:
         # the heading's drift teaches the bias along the vertical; the field's tilt coupling
         # would also reach the horizontal bias, through the tilt errors gravity left (a drone's
         # holding accelerations), and made it confident and wrong: considered, not learned
-        if self._update(h, np.array([north]), np.array([[var]]), 1, Learn.VERTICAL):
+        if self._update(h, (north,), (var,), 1, Learn.VERTICAL):
             self.counters.mag_updates += 1
         else:
             self.counters.mag_rejected += 1
 
-    def _update(self, h: F64, y: F64, r: F64, dof: int, learn: Learn = Learn.ALL) -> bool:
-        """A Kalman update with the chi-squared gate (`kalman.update`); False (and nothing
-        changed) if rejected. Without a magnetometer's heading, an update that learns less than
-        all leaves the heading alone too: through its correlation with the tilt it would follow
-        the acceleration taken for gravity."""
+    def _update(
+        self, h: F64, y: tuple[float, ...], r: tuple[float, ...], dof: int, learn: Learn = Learn.ALL
+    ) -> bool:
+        """A Kalman update with the chi-squared gate (`kalman.update`: `y` the innovation, `r`
+        its noise variances); False (and nothing changed) if rejected. Without a magnetometer's
+        heading, an update that learns less than all leaves the heading alone too: through its
+        correlation with the tilt it would follow the acceleration taken for gravity."""
         gate = CHI2_2DOF_999 if dof == 2 else CHI2_1DOF_999 if dof == 1 else CHI2_3DOF_999
-        up = self._body_up() if learn in (Learn.VERTICAL, Learn.HORIZONTAL) else None
-        dx = np.empty(N_STATES)
         keep_heading = not self.heading_known
-        if not kalman.update(self.P, h, y, r, gate, learn, CHI2_2DOF_95, up, keep_heading, dx):
+        e = kalman.update(
+            self.P, h, y, r, gate, learn, CHI2_2DOF_95, self.q, keep_heading, self.b, self.a
+        )
+        if e is None:
             return False
-        d = dx.tolist()
-        self._rotate_world(d[0], d[1], d[2])
-        b, a = self.b.tolist(), self.a.tolist()
-        self.b = np.array([b[0] + d[3], b[1] + d[4], b[2] + d[5]])
-        self.a = np.array([a[0] + d[6], a[1] + d[7]])
+        if self._rise is not None:  # the next window's first half turns with the world
+            vec, weight, t = self._rise
+            self._rise = (_rotate(e, vec), weight, t)
         return True
-
-    def _body_up(self) -> F64:
-        """The world's vertical in the body frame (the third row of R)."""
-        w, x, y, z = self.q.tolist()
-        return np.array([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)])
 
     def _rotate_world(self, x: float, y: float, z: float) -> None:
         """Turn the estimate by the world-frame rotation vector (x, y, z). In Python floats: a
         correction's few scalar steps cost less so than as NumPy calls."""
-        th = math.sqrt(x * x + y * y + z * z)
-        s = math.sin(0.5 * th) / th if th > 1e-12 else 0.5
-        e = (math.cos(0.5 * th), x * s, y * s, z * s)
+        e = kalman.rotation_quat(x, y, z)
         w, a, b, c = _quat_mul(e, self.q.tolist())
         n = math.sqrt(w * w + a * a + b * b + c * c)
         self.q = np.array([w / n, a / n, b / n, c / n])

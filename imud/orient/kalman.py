@@ -8,12 +8,14 @@ rounding (matrix products add in another order; tests/test_compiled.py). The cor
 about ten times a second, and paced, as the daemon runs them, the fixed cost of their few
 dozen NumPy calls on 8 x 8 matrices was most of the orientation stage's cost a sample.
 
-The covariance `p` is updated in place (float64, C order, 8 x 8), by the kernel and the twin
-alike, so a caller never holds a stale one.
+The covariance `p` (float64, C order, 8 x 8), the bias and the linear acceleration are updated
+in place, by the kernel and the twin alike, and small vectors go in and out as tuples of
+floats: paced, each NumPy call left in a correction costs microseconds of cold caches.
 """
 
 from __future__ import annotations
 
+import math
 from enum import IntEnum
 
 import numpy as np
@@ -90,43 +92,52 @@ def inverse(s: F64) -> F64 | None:
     return out
 
 
-def interval_sums(qq: F64, qqa: F64, kqqa: F64) -> F64:
-    """(15,): an interval's sum of rotation matrices (3 x 3, row-major) from its sum of q outer q
-    (16), and its sums of rotated specific force, plain and index-weighted, from (q outer q)
-    outer a (16 x 3 each)."""
+def force_sums(qqa: F64, kqqa: F64) -> tuple[float, float, float, float, float, float]:
+    """An interval's sums of world-frame specific force, plain then index-weighted (3 + 3), from
+    its sums of (q outer q) outer a (16 x 3 each)."""
     if _kernels is not None:
-        out = np.empty(15)
-        _kernels.orient_sums(qq, qqa, kqqa, out)
+        out: tuple[float, float, float, float, float, float] = _kernels.orient_sums(qqa, kqqa)
         return out
-    return np.concatenate([FORM @ qq, FORM_V @ qqa.ravel(), FORM_V @ kqqa.ravel()])
+    x, y, z = (FORM_V @ qqa.ravel()).tolist()
+    u, v, w = (FORM_V @ kqqa.ravel()).tolist()
+    return x, y, z, u, v, w
 
 
-def propagate(p: F64, turn: F64, rho: float, q_density: F64, t: float, linear_var: float) -> None:
-    """`p` over an interval of `t` seconds, in place: d(dtheta)/dt = -R db, with `turn` the
-    interval's mean rotation matrix times t (3 x 3, row-major, 9), white gyro noise and the
-    bias's random walk (`q_density`, 8, per second), and the linear acceleration decaying by
-    `rho` toward its variance `linear_var`."""
+def _turn(qq: F64, scale: float) -> F64:
+    """scale x the rotation-matrix sum of an interval's q outer q sum (16): 3 x 3."""
+    out: F64 = (FORM @ qq).reshape(3, 3) * scale
+    return out
+
+
+def propagate(
+    p: F64, qq: F64, scale: float, rho: float, q_density: F64, t: float, linear_var: float, a: F64
+) -> None:
+    """`p` over an interval of `t` seconds, in place: d(dtheta)/dt = -R db, with the interval's
+    mean rotation times t as `scale` x the rotation sum of `qq` (its sum of q outer q), white
+    gyro noise and the bias's random walk (`q_density`, 8, per second), and the linear
+    acceleration `a` (2, in place) decaying by `rho` toward its variance `linear_var`."""
     if _kernels is not None:
-        _kernels.orient_propagate(p, turn, rho, q_density, t, linear_var)
+        _kernels.orient_propagate(p, qq, scale, rho, q_density, t, linear_var, a)
         return
     phi = _I8.copy()
-    phi[:3, 3:6] = -turn.reshape(3, 3)
+    phi[:3, 3:6] = -_turn(qq, scale)
     phi[6, 6] = phi[7, 7] = rho
     q = q_density * t
     q[6] = q[7] = linear_var * (1.0 - rho * rho)
     p[:] = phi @ p @ phi.T + np.diag(q)
+    a *= rho
 
 
-def gravity_h(p: F64, turn: F64, g: float, h: F64) -> float:
+def gravity_h(p: F64, qq: F64, scale: float, g: float, h: F64) -> float:
     """Gravity's measurement matrix into `h` (2 x 8): its horizontal components' response to
-    the world-frame error (g times the cross product), to the bias through `turn` (the rotation
-    since the window's centre, 3 x 3, 9) and to the linear acceleration; returns the trace of
-    h p h^T."""
+    the world-frame error (g times the cross product), to the bias through the rotation since
+    the window's centre (`scale` x the rotation sum of `qq`) and to the linear acceleration;
+    returns the trace of h p h^T."""
     if _kernels is not None:
-        trace: float = _kernels.orient_gravity_h(p, turn, g, h)
+        trace: float = _kernels.orient_gravity_h(p, qq, scale, g, h)
         return trace
     gm = np.array([[0.0, -g, 0.0], [g, 0.0, 0.0]])
-    h[:] = np.hstack([gm, gm @ turn.reshape(3, 3), _I2])
+    h[:] = np.hstack([gm, gm @ _turn(qq, scale), _I2])
     hph = h @ p @ h.T
     return float(hph[0, 0] + hph[1, 1])
 
@@ -134,35 +145,40 @@ def gravity_h(p: F64, turn: F64, g: float, h: F64) -> float:
 def update(
     p: F64,
     h: F64,
-    y: F64,
-    r: F64,
+    y: tuple[float, ...],
+    r: tuple[float, ...],
     gate: float,
     learn: Learn,
     consistent: float,
-    up: F64 | None,
+    q: F64,
     keep_heading: bool,
-    dx: F64,
-) -> bool:
-    """A Kalman update of `p` (in place) by innovation `y` (d) with measurement matrix `h`
-    (d x 8) and noise `r` (d x d), gated by chi-squared `gate`; the state's correction into `dx`
-    (8). False, with nothing changed, if rejected or singular. Below Learn.ALL the states it
-    leaves out are considered, not estimated (a Schmidt update: their gain is zero and the
-    covariance stays consistent); `up` is the body's vertical in the body frame for
-    Learn.VERTICAL and HORIZONTAL; `keep_heading` gives the heading no gain either (with no
-    magnetometer it would follow the tilt's errors through their correlation)."""
+    b: F64,
+    a: F64,
+) -> tuple[float, float, float, float] | None:
+    """A Kalman update of `p` (in place) by innovation `y` (d floats) with measurement matrix
+    `h` (d x 8) and diagonal noise `r` (d variances), gated by chi-squared `gate`. Accepted, the
+    orientation `q` is turned by the world-frame correction e = exp(dtheta) (q = e x q,
+    normalised), the bias's correction is added to `b` (3) and the linear acceleration's to `a`
+    (2), all in place, and e is returned; rejected (or singular), nothing changes and it
+    returns None. Below Learn.ALL the states it leaves out
+    are considered, not estimated (a Schmidt update: their gain is zero and the covariance stays
+    consistent); Learn.VERTICAL and HORIZONTAL split the bias along the body's vertical, from
+    the orientation `q`; `keep_heading` gives the heading no gain either (with no magnetometer
+    it would follow the tilt's errors through their correlation)."""
     if _kernels is not None:
-        ok: bool = _kernels.orient_update(
-            p, h, y, r, gate, int(learn), consistent, up, keep_heading, dx
+        out: tuple[float, float, float, float] | None = _kernels.orient_update(
+            p, h, y, r, gate, int(learn), consistent, q, keep_heading, b, a
         )
-        return ok
+        return out
+    yv, rm = np.array(y), np.diag(r)
     ph = p @ h.T
-    s = h @ ph + r
+    s = h @ ph + rm
     s_inv = inverse(s)
     if s_inv is None:
-        return False
-    nis = float(y @ s_inv @ y)
+        return None
+    nis = float(yv @ s_inv @ yv)
     if not nis <= gate:
-        return False
+        return None
     k = ph @ s_inv
     if learn is Learn.IF_CONSISTENT:
         learn = Learn.ALL if nis <= consistent else Learn.NOTHING
@@ -172,13 +188,34 @@ def update(
         if learn is Learn.NOTHING:
             k[3:6] = 0.0
         else:
-            assert up is not None
+            w, x, yq, z = q.tolist()
+            up = np.array([2 * (x * z - w * yq), 2 * (yq * z + w * x), 1 - 2 * (x * x + yq * yq)])
             along = np.outer(up, up @ k[3:6])
             k[3:6] = along if learn is Learn.VERTICAL else k[3:6] - along
         if keep_heading:
             k[2] = 0.0
         ikh = _I8 - k @ h
-        new = ikh @ p @ ikh.T + k @ r @ k.T
-    dx[:] = k @ y
+        new = ikh @ p @ ikh.T + k @ rm @ k.T
+    dx = k @ yv
     p[:] = 0.5 * (new + new.T)
-    return True
+    b += dx[3:6]
+    a += dx[6:8]
+    e = rotation_quat(*dx[:3].tolist())
+    w, x, yq, z = q.tolist()
+    ew, ex, ey, ez = e
+    t = (
+        ew * w - ex * x - ey * yq - ez * z,
+        ew * x + ex * w + ey * z - ez * yq,
+        ew * yq - ex * z + ey * w + ez * x,
+        ew * z + ex * yq - ey * x + ez * w,
+    )
+    n = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2] + t[3] * t[3])
+    q[:] = (t[0] / n, t[1] / n, t[2] / n, t[3] / n)
+    return e
+
+
+def rotation_quat(x: float, y: float, z: float) -> tuple[float, float, float, float]:
+    """exp of the rotation vector (x, y, z): the unit quaternion turning by it."""
+    th = math.sqrt(x * x + y * y + z * z)
+    s = math.sin(0.5 * th) / th if th > 1e-12 else 0.5
+    return math.cos(0.5 * th), x * s, y * s, z * s
