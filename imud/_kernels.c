@@ -568,6 +568,20 @@ static void release_all(Py_buffer *views, int count) {
         PyBuffer_Release(&views[count]);
 }
 
+static void force_sums_core(const double *qqa, const double *kqqa, double out[6]) {
+    for (int i = 0; i < 6; i++)
+        out[i] = 0.0;
+    for (int s = 0; s < 2; s++) {
+        const double *src = s ? kqqa : qqa;
+        for (int j = 0; j < 3; j++) {
+            double r[9];
+            rot_from_qq(src + j, 3, r);
+            for (int i = 0; i < 3; i++)
+                out[3 * s + i] += r[3 * i + j];
+        }
+    }
+}
+
 /* orient_sums(qqa, kqqa) -> (6 floats): an interval's sums of rotated specific force, plain
  * then index-weighted, from its (q outer q) outer a sums (16 x 3 each). kalman.force_sums. */
 static PyObject *orient_sums(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
@@ -581,46 +595,16 @@ static PyObject *orient_sums(PyObject *self, PyObject *const *args, Py_ssize_t n
     const int wr[2] = {0, 0};
     if (!get_doubles(args, v, sizes, wr, 2, "orient_sums"))
         return NULL;
-    double out[6] = {0, 0, 0, 0, 0, 0};
-    for (int s = 0; s < 2; s++) {
-        const double *src = v[s].buf;
-        for (int j = 0; j < 3; j++) {
-            double r[9];
-            rot_from_qq(src + j, 3, r);
-            for (int i = 0; i < 3; i++)
-                out[3 * s + i] += r[3 * i + j];
-        }
-    }
+    double out[6];
+    force_sums_core(v[0].buf, v[1].buf, out);
     release_all(v, 2);
     return Py_BuildValue("(dddddd)", out[0], out[1], out[2], out[3], out[4], out[5]);
 }
 
-/* orient_propagate(p, qq, scale, rho, q_density, t, linear_var, a): p = phi p phi^T + Q in
- * place, phi the identity with -scale x (the rotation sum from qq) in the rotation-bias block
- * and rho on the linear acceleration's diagonal; the linear acceleration a (2) decays by rho in
- * place. kalman.propagate. */
-static PyObject *orient_propagate(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    (void)self;
-    if (nargs != 8) {
-        PyErr_SetString(PyExc_TypeError, "orient_propagate() takes 8 arguments");
-        return NULL;
-    }
-    const double scale = PyFloat_AsDouble(args[2]);
-    const double rho = PyFloat_AsDouble(args[3]);
-    const double t = PyFloat_AsDouble(args[5]);
-    const double lvar = PyFloat_AsDouble(args[6]);
-    if (PyErr_Occurred())
-        return NULL;
-    Py_buffer v[4];
-    PyObject *objs[4] = {args[0], args[1], args[4], args[7]};
-    const Py_ssize_t sizes[4] = {NS * NS, 16, NS, 2};
-    const int wr[4] = {1, 0, 0, 1};
-    if (!get_doubles(objs, v, sizes, wr, 4, "orient_propagate"))
-        return NULL;
-    double *p = v[0].buf, *a = v[3].buf;
-    const double *qd = v[2].buf;
+static void propagate_core(double *p, const double *qq, double scale, double rho,
+                           const double *qd, double t, double lvar, double *a) {
     double turn[9];
-    rot_from_qq(v[1].buf, 1, turn);
+    rot_from_qq(qq, 1, turn);
     double phi[NS][NS] = {{0}}, tmp[NS][NS];
     for (int i = 0; i < NS; i++)
         phi[i][i] = 1.0;
@@ -649,32 +633,39 @@ static PyObject *orient_propagate(PyObject *self, PyObject *const *args, Py_ssiz
     p[NS * 7 + 7] += ql;
     a[0] *= rho;
     a[1] *= rho;
+}
+
+/* orient_propagate(p, qq, scale, rho, q_density, t, linear_var, a): p = phi p phi^T + Q in
+ * place, phi the identity with -scale x (the rotation sum from qq) in the rotation-bias block
+ * and rho on the linear acceleration's diagonal; the linear acceleration a (2) decays by rho in
+ * place. kalman.propagate. */
+static PyObject *orient_propagate(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 8) {
+        PyErr_SetString(PyExc_TypeError, "orient_propagate() takes 8 arguments");
+        return NULL;
+    }
+    const double scale = PyFloat_AsDouble(args[2]);
+    const double rho = PyFloat_AsDouble(args[3]);
+    const double t = PyFloat_AsDouble(args[5]);
+    const double lvar = PyFloat_AsDouble(args[6]);
+    if (PyErr_Occurred())
+        return NULL;
+    Py_buffer v[4];
+    PyObject *objs[4] = {args[0], args[1], args[4], args[7]};
+    const Py_ssize_t sizes[4] = {NS * NS, 16, NS, 2};
+    const int wr[4] = {1, 0, 0, 1};
+    if (!get_doubles(objs, v, sizes, wr, 4, "orient_propagate"))
+        return NULL;
+    propagate_core(v[0].buf, v[1].buf, scale, rho, v[2].buf, t, lvar, v[3].buf);
     release_all(v, 4);
     Py_RETURN_NONE;
 }
 
-/* orient_gravity_h(p, qq, scale, g, h) -> trace(h p h^T): gravity's measurement matrix (2 x 8)
- * into h, its bias columns through scale x (the rotation sum from qq). kalman.gravity_h. */
-static PyObject *orient_gravity_h(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    (void)self;
-    if (nargs != 5) {
-        PyErr_SetString(PyExc_TypeError, "orient_gravity_h() takes 5 arguments");
-        return NULL;
-    }
-    const double scale = PyFloat_AsDouble(args[2]);
-    const double g = PyFloat_AsDouble(args[3]);
-    if (PyErr_Occurred())
-        return NULL;
-    Py_buffer v[3];
-    PyObject *objs[3] = {args[0], args[1], args[4]};
-    const Py_ssize_t sizes[3] = {NS * NS, 16, 2 * NS};
-    const int wr[3] = {0, 0, 1};
-    if (!get_doubles(objs, v, sizes, wr, 3, "orient_gravity_h"))
-        return NULL;
-    const double *p = v[0].buf;
-    double *h = v[2].buf;
+static double gravity_h_core(const double *p, const double *qq, double scale, double g,
+                             double *h) {
     double turn[9];
-    rot_from_qq(v[1].buf, 1, turn);
+    rot_from_qq(qq, 1, turn);
     memset(h, 0, 2 * NS * sizeof(double));
     /* gm = [[0, -g, 0], [g, 0, 0]]: gm x = (-g x1, g x0) */
     h[1] = -g;
@@ -695,6 +686,28 @@ static PyObject *orient_gravity_h(PyObject *self, PyObject *const *args, Py_ssiz
             trace += hr[i] * acc;
         }
     }
+    return trace;
+}
+
+/* orient_gravity_h(p, qq, scale, g, h) -> trace(h p h^T): gravity's measurement matrix (2 x 8)
+ * into h, its bias columns through scale x (the rotation sum from qq). kalman.gravity_h. */
+static PyObject *orient_gravity_h(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 5) {
+        PyErr_SetString(PyExc_TypeError, "orient_gravity_h() takes 5 arguments");
+        return NULL;
+    }
+    const double scale = PyFloat_AsDouble(args[2]);
+    const double g = PyFloat_AsDouble(args[3]);
+    if (PyErr_Occurred())
+        return NULL;
+    Py_buffer v[3];
+    PyObject *objs[3] = {args[0], args[1], args[4]};
+    const Py_ssize_t sizes[3] = {NS * NS, 16, 2 * NS};
+    const int wr[3] = {0, 0, 1};
+    if (!get_doubles(objs, v, sizes, wr, 3, "orient_gravity_h"))
+        return NULL;
+    const double trace = gravity_h_core(v[0].buf, v[1].buf, scale, g, v[2].buf);
     release_all(v, 3);
     return PyFloat_FromDouble(trace);
 }
@@ -733,65 +746,10 @@ static int small_inverse(int d, const double s[3][3], double inv[3][3]) {
     return 1;
 }
 
-/* Up to three floats from a tuple (or any sequence); their number, or -1 with an error set. */
-static int small_floats(PyObject *obj, double out[3], const char *what) {
-    PyObject *seq = PySequence_Fast(obj, what);
-    if (seq == NULL)
-        return -1;
-    const Py_ssize_t n = PySequence_Fast_GET_SIZE(seq);
-    if (n < 1 || n > 3) {
-        Py_DECREF(seq);
-        PyErr_Format(PyExc_ValueError, "%s: 1 to 3 values", what);
-        return -1;
-    }
-    for (Py_ssize_t i = 0; i < n; i++)
-        out[i] = PyFloat_AsDouble(PySequence_Fast_GET_ITEM(seq, i));
-    Py_DECREF(seq);
-    return PyErr_Occurred() ? -1 : (int)n;
-}
-
-/* orient_update(p, h, y, r, gate, learn, consistent, q, keep_heading, b, a)
- *     -> (w, x, y, z) or None
- *
- * kalman.update: a gated Kalman update of p (8 x 8, in place) by the innovation y (a tuple of
- * d <= 3 floats) through h (d x 8) with diagonal noise r (a tuple of d variances). Accepted, it
- * turns the orientation q (4, in place) by the world-frame correction e = exp(dtheta), q = e x q
- * normalised, adds the bias's correction to b (3) and the linear acceleration's to a (2), in
- * place, and returns e; rejected (the chi-squared
- * gate, or a singular innovation covariance), it changes nothing and returns None. learn: 0
- * all, 1 the bias across the body's vertical (from the orientation q), 2 along it, 3 no bias, 4
- * all if the normalised innovation is within `consistent` else no bias. Below "all" the gain of
- * what is left out is zero (and the heading's too with keep_heading) and the covariance takes
- * Joseph's form. */
-static PyObject *orient_update(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    (void)self;
-    if (nargs != 11) {
-        PyErr_SetString(PyExc_TypeError, "orient_update() takes 11 arguments");
-        return NULL;
-    }
-    const double gate = PyFloat_AsDouble(args[4]);
-    long learn = PyLong_AsLong(args[5]);
-    const double consistent = PyFloat_AsDouble(args[6]);
-    const int keep_heading = PyObject_IsTrue(args[8]);
-    if (PyErr_Occurred() || keep_heading < 0)
-        return NULL;
-    double y[3], rd[3];
-    const int d = small_floats(args[2], y, "orient_update y");
-    if (d < 0)
-        return NULL;
-    if (small_floats(args[3], rd, "orient_update r") != d) {
-        if (!PyErr_Occurred())
-            PyErr_SetString(PyExc_ValueError, "orient_update: r and y of one length");
-        return NULL;
-    }
-    Py_buffer v[5];
-    PyObject *objs[5] = {args[0], args[1], args[7], args[9], args[10]};
-    const Py_ssize_t sizes[5] = {NS * NS, d * NS, 4, 3, 2};
-    const int wr[5] = {1, 0, 1, 1, 1};
-    if (!get_doubles(objs, v, sizes, wr, 5, "orient_update"))
-        return NULL;
-    double *p = v[0].buf, *b = v[3].buf, *a = v[4].buf, *q = v[2].buf;
-    const double *h = v[1].buf;
+/* kalman.update's arithmetic (orient_update's): 1 if accepted. */
+static int update_core(double *p, const double *h, int d, const double *y, const double *rd,
+                       double gate, long learn, double consistent, double *q, int keep_heading,
+                       double *b, double *a, double e[4]) {
     double ph[NS][3], s[3][3], si[3][3], k[NS][3];
     for (int i = 0; i < NS; i++)
         for (int j = 0; j < d; j++) {
@@ -895,7 +853,8 @@ static PyObject *orient_update(PyObject *self, PyObject *const *args, Py_ssize_t
         a[0] += dx[6];
         a[1] += dx[7];
     }
-    double e[4] = {1.0, 0.0, 0.0, 0.0};
+    e[0] = 1.0;
+    e[1] = e[2] = e[3] = 0.0;
     if (ok) {
         /* ekf.OrientationFilter._rotate_world */
         const double th = sqrt(dx[0] * dx[0] + dx[1] * dx[1] + dx[2] * dx[2]);
@@ -911,10 +870,224 @@ static PyObject *orient_update(PyObject *self, PyObject *const *args, Py_ssize_t
         for (int i = 0; i < 4; i++)
             q[i] = qn[i] / norm;
     }
+    return ok;
+}
+
+/* Up to three floats from a tuple (or any sequence); their number, or -1 with an error set. */
+static int small_floats(PyObject *obj, double out[3], const char *what) {
+    PyObject *seq = PySequence_Fast(obj, what);
+    if (seq == NULL)
+        return -1;
+    const Py_ssize_t n = PySequence_Fast_GET_SIZE(seq);
+    if (n < 1 || n > 3) {
+        Py_DECREF(seq);
+        PyErr_Format(PyExc_ValueError, "%s: 1 to 3 values", what);
+        return -1;
+    }
+    for (Py_ssize_t i = 0; i < n; i++)
+        out[i] = PyFloat_AsDouble(PySequence_Fast_GET_ITEM(seq, i));
+    Py_DECREF(seq);
+    return PyErr_Occurred() ? -1 : (int)n;
+}
+
+/* orient_update(p, h, y, r, gate, learn, consistent, q, keep_heading, b, a)
+ *     -> (w, x, y, z) or None
+ *
+ * kalman.update: a gated Kalman update of p (8 x 8, in place) by the innovation y (a tuple of
+ * d <= 3 floats) through h (d x 8) with diagonal noise r (a tuple of d variances). Accepted, it
+ * turns the orientation q (4, in place) by the world-frame correction e = exp(dtheta), q = e x q
+ * normalised, adds the bias's correction to b (3) and the linear acceleration's to a (2), in
+ * place, and returns e; rejected (the chi-squared
+ * gate, or a singular innovation covariance), it changes nothing and returns None. learn: 0
+ * all, 1 the bias across the body's vertical (from the orientation q), 2 along it, 3 no bias, 4
+ * all if the normalised innovation is within `consistent` else no bias. Below "all" the gain of
+ * what is left out is zero (and the heading's too with keep_heading) and the covariance takes
+ * Joseph's form. */
+static PyObject *orient_update(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 11) {
+        PyErr_SetString(PyExc_TypeError, "orient_update() takes 11 arguments");
+        return NULL;
+    }
+    const double gate = PyFloat_AsDouble(args[4]);
+    long learn = PyLong_AsLong(args[5]);
+    const double consistent = PyFloat_AsDouble(args[6]);
+    const int keep_heading = PyObject_IsTrue(args[8]);
+    if (PyErr_Occurred() || keep_heading < 0)
+        return NULL;
+    double y[3], rd[3];
+    const int d = small_floats(args[2], y, "orient_update y");
+    if (d < 0)
+        return NULL;
+    if (small_floats(args[3], rd, "orient_update r") != d) {
+        if (!PyErr_Occurred())
+            PyErr_SetString(PyExc_ValueError, "orient_update: r and y of one length");
+        return NULL;
+    }
+    Py_buffer v[5];
+    PyObject *objs[5] = {args[0], args[1], args[7], args[9], args[10]};
+    const Py_ssize_t sizes[5] = {NS * NS, d * NS, 4, 3, 2};
+    const int wr[5] = {1, 0, 1, 1, 1};
+    if (!get_doubles(objs, v, sizes, wr, 5, "orient_update"))
+        return NULL;
+    double *p = v[0].buf, *b = v[3].buf, *a = v[4].buf, *q = v[2].buf;
+    double e[4];
+    const int ok = update_core(p, v[1].buf, d, y, rd, gate, learn, consistent, q, keep_heading,
+                               b, a, e);
     release_all(v, 5);
     if (!ok)
         Py_RETURN_NONE;
     return Py_BuildValue("(dddd)", e[0], e[1], e[2], e[3]);
+}
+
+/* The correction's scalar state (ekf.OrientationFilter's attributes; NaN for None), in doubles: */
+enum {
+    CS_LINEAR_VAR, CS_G0, CS_G0_N, CS_ADAPT_N, CS_PREV_YX, CS_PREV_YY, CS_WHITE_VAR, CS_G_VAR,
+    CS_DRIFTED_S, CS_REJECTED_S, CS_RISE, CS_RISE_W = CS_RISE + 3, CS_RISE_T, CS_HAS_RISE,
+    CS_MEAN, CS_STATE = CS_MEAN + 3
+};
+/* and its constants (ekf's module constants and the filter's settings): */
+enum {
+    CP_ACCEL2, CP_LINEAR_TIME, CP_LINEAR_MAX2, CP_RECOVERY_S, CP_STEADY_AFTER, CP_STEADY2,
+    CP_ADAPT_GAIN, CP_WHITE_GAIN, CP_G0_GAIN, CP_FLOOR2, CP_DRIFT_SHARE, CP_DRIFT_SIGMAS,
+    CP_DRIFT_S, CP_GATE, CP_CONSISTENT, CP_PARAMS
+};
+
+/* orient_correct(p, qq, qqa, kqqa, h, q, b, a, q_density, params, st, n, steps, t, kn,
+ *                keep_heading) -> 0 accepted, 1 rejected, 2 rejected and the tilt to re-seed
+ *
+ * One gravity correction at the end of an interval, all of ekf.OrientationFilter._correct
+ * but the still windows' and the magnetometer's updates (its twin: _propagate, then
+ * _accel_update with kalman's functions): the covariance's propagation, the gravity window
+ * under its triangle, the noise levels' learning, the gated update with what it may teach, and
+ * the reference |g| and the re-seed's tests. The arrays are updated in place, the scalar state
+ * `st` (CS_STATE doubles) too; with 2 the window's mean is in st[CS_MEAN..] for the caller's
+ * re-seed. */
+static PyObject *orient_correct(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    (void)self;
+    if (nargs != 16) {
+        PyErr_SetString(PyExc_TypeError, "orient_correct() takes 16 arguments");
+        return NULL;
+    }
+    const double n = PyFloat_AsDouble(args[11]);
+    const double steps = PyFloat_AsDouble(args[12]);
+    const double t = PyFloat_AsDouble(args[13]);
+    const double kn = PyFloat_AsDouble(args[14]);
+    const int keep_heading = PyObject_IsTrue(args[15]);
+    if (PyErr_Occurred() || keep_heading < 0)
+        return NULL;
+    if (!(n > 0)) {
+        PyErr_SetString(PyExc_ValueError, "orient_correct: an interval with accelerometer samples");
+        return NULL;
+    }
+    Py_buffer v[11];
+    const Py_ssize_t sizes[11] = {NS * NS, 16, 48, 48, 2 * NS, 4, 3, 2, NS, CP_PARAMS, CS_STATE};
+    const int wr[11] = {1, 0, 0, 0, 1, 1, 1, 1, 0, 0, 1};
+    if (!get_doubles(args, v, sizes, wr, 11, "orient_correct"))
+        return NULL;
+    double *p = v[0].buf, *h = v[4].buf, *q = v[5].buf, *b = v[6].buf, *a = v[7].buf;
+    const double *qq = v[1].buf, *qd = v[8].buf, *cp = v[9].buf;
+    double *st = v[10].buf;
+    const double steps1 = steps > 1.0 ? steps : 1.0;
+
+    /* _propagate */
+    const double rho = exp(-t / cp[CP_LINEAR_TIME]);
+    propagate_core(p, qq, t / steps1, rho, qd, t, st[CS_LINEAR_VAR], a);
+
+    /* _gravity_window */
+    double sums[6];
+    force_sums_core(v[2].buf, v[3].buf, sums);
+    const double rising[3] = {sums[3] / steps1, sums[4] / steps1, sums[5] / steps1};
+    const double w_rise = kn / steps1, w_fall = n - w_rise;
+    const int has_prev = st[CS_HAS_RISE] != 0.0;
+    double prev[3] = {st[CS_RISE], st[CS_RISE + 1], st[CS_RISE + 2]};
+    const double prev_w = st[CS_RISE_W], prev_t = st[CS_RISE_T];
+    for (int i = 0; i < 3; i++)
+        st[CS_RISE + i] = rising[i];
+    st[CS_RISE_W] = w_rise;
+    st[CS_RISE_T] = t;
+    st[CS_HAS_RISE] = 1.0;
+    double mean[3], centre;
+    if (!has_prev || !(prev_w + w_fall > 0.0)) {
+        for (int i = 0; i < 3; i++)
+            mean[i] = sums[i] / n;
+        centre = 0.5 * t;
+    } else {
+        centre = (w_fall * t / 3.0 + prev_w * (t + prev_t / 3.0)) / (w_fall + prev_w);
+        const double k = w_fall + prev_w;
+        for (int i = 0; i < 3; i++)
+            mean[i] = (sums[i] - rising[i] + prev[i]) / k;
+    }
+
+    /* _accel_update */
+    const double g = sqrt(mean[0] * mean[0] + mean[1] * mean[1] + mean[2] * mean[2]);
+    const double g0 = isnan(st[CS_G0]) ? g : st[CS_G0];
+    const double tt = n * t / steps1;
+    double var = cp[CP_ACCEL2] / tt + (g - g0) * (g - g0);
+    const double y[2] = {mean[0] - a[0], mean[1] - a[1]};
+    const double yy2 = y[0] * y[0] + y[1] * y[1];
+    if (!isnan(st[CS_PREV_YX])) {
+        const double dx = y[0] - st[CS_PREV_YX], dy = y[1] - st[CS_PREV_YY];
+        st[CS_WHITE_VAR] += cp[CP_WHITE_GAIN] * (0.25 * (dx * dx + dy * dy) - st[CS_WHITE_VAR]);
+    }
+    st[CS_PREV_YX] = y[0];
+    st[CS_PREV_YY] = y[1];
+    if (st[CS_WHITE_VAR] > var)
+        var = st[CS_WHITE_VAR];
+    const double hph = gravity_h_core(p, qq, centre / steps1, g, h);
+    const double excess = 0.5 * (yy2 - hph) - var;
+    st[CS_ADAPT_N] += 1.0;
+    const double gain = 1.0 / st[CS_ADAPT_N] > cp[CP_ADAPT_GAIN] ? 1.0 / st[CS_ADAPT_N]
+                                                                  : cp[CP_ADAPT_GAIN];
+    double lv = st[CS_LINEAR_VAR] + gain * excess;
+    lv = lv > cp[CP_FLOOR2] ? lv : cp[CP_FLOOR2];
+    st[CS_LINEAR_VAR] = lv < cp[CP_LINEAR_MAX2] ? lv : cp[CP_LINEAR_MAX2];
+    long learn;
+    if (st[CS_ADAPT_N] < cp[CP_STEADY_AFTER])
+        learn = 4; /* Learn.IF_CONSISTENT */
+    else if (st[CS_LINEAR_VAR] <= cp[CP_STEADY2])
+        learn = 0; /* ALL */
+    else
+        learn = 1; /* HORIZONTAL */
+    const double rd[2] = {var, var};
+    double e[4];
+    long code;
+    if (update_core(p, h, 2, y, rd, cp[CP_GATE], learn, cp[CP_CONSISTENT], q, keep_heading, b,
+                    a, e)) {
+        /* the next window's first half turns with the world (ekf._rotate) */
+        const double w = e[0], x = e[1], yq = e[2], z = e[3];
+        const double r0 = st[CS_RISE], r1 = st[CS_RISE + 1], r2 = st[CS_RISE + 2];
+        st[CS_RISE] = (1 - 2 * (yq * yq + z * z)) * r0 + 2 * (x * yq - w * z) * r1 +
+                      2 * (x * z + w * yq) * r2;
+        st[CS_RISE + 1] = 2 * (x * yq + w * z) * r0 + (1 - 2 * (x * x + z * z)) * r1 +
+                          2 * (yq * z - w * x) * r2;
+        st[CS_RISE + 2] = 2 * (x * z - w * yq) * r0 + 2 * (yq * z + w * x) * r1 +
+                          (1 - 2 * (x * x + yq * yq)) * r2;
+        st[CS_G0_N] += 1.0;
+        const double g0_gain = 1.0 / st[CS_G0_N] > cp[CP_G0_GAIN] ? 1.0 / st[CS_G0_N]
+                                                                   : cp[CP_G0_GAIN];
+        st[CS_G0] = g0 + g0_gain * (g - g0);
+        st[CS_G_VAR] += cp[CP_WHITE_GAIN] * ((g - g0) * (g - g0) - st[CS_G_VAR]);
+        st[CS_REJECTED_S] = st[CS_DRIFTED_S] = 0.0;
+        code = 0;
+    } else {
+        st[CS_REJECTED_S] += t;
+        const double claimed = yy2 / (2.0 * g0);
+        const double sd = sqrt(cp[CP_ACCEL2] / tt + st[CS_G_VAR]);
+        const double seen = g - g0;
+        const int drifted = seen < cp[CP_DRIFT_SHARE] * claimed &&
+                            claimed - seen > cp[CP_DRIFT_SIGMAS] * sd;
+        st[CS_DRIFTED_S] = drifted ? st[CS_DRIFTED_S] + t : 0.0;
+        code = 1;
+        if (st[CS_DRIFTED_S] >= cp[CP_DRIFT_S] || st[CS_REJECTED_S] >= cp[CP_RECOVERY_S]) {
+            for (int i = 0; i < 3; i++)
+                st[CS_MEAN + i] = mean[i];
+            st[CS_REJECTED_S] = st[CS_DRIFTED_S] = 0.0;
+            code = 2;
+        }
+    }
+    release_all(v, 11);
+    return PyLong_FromLong(code);
 }
 
 /* --- the gyro-bias tracker's windows (calib.track, its NumPy twin) --- */
@@ -1102,6 +1275,8 @@ static PyMethodDef methods[] = {
      "A gated, Schmidt-capable Kalman update of the orientation covariance (orient.kalman)."},
     {"track_windows", (PyCFunction)(void (*)(void))track_windows, METH_FASTCALL,
      "The gyro-bias tracker's windows: each one's means, variances and long-run ratios."},
+    {"orient_correct", (PyCFunction)(void (*)(void))orient_correct, METH_FASTCALL,
+     "One gravity correction of the orientation filter, in one call (orient.ekf)."},
     {"reaches", (PyCFunction)(void (*)(void))reaches, METH_FASTCALL,
      "Whether any int32 count is at or beyond +-full_scale."},
     {NULL, NULL, 0, NULL},

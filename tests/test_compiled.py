@@ -29,6 +29,7 @@ from imud.chips.icm42688p import driver as icm
 from imud.chips.icm42688p import registers as icm_r
 from imud.orient import ekf, kalman
 from imud.settings import GyroBiasTracking
+from imud.sim import scenarios as sc
 from tests.helpers import make_rig
 
 KERNELS = ["imud._kernels", "imud.chips.icm42688p._fifo", "imud.chips.bmi088._fifo"]
@@ -666,6 +667,63 @@ def test_orient_update_matches_numpy(
         _close(np.array(fast), np.array(slow))
         assert (pf == pf.T).all()
         assert float(qf @ qf) == pytest.approx(1.0, abs=1e-15)
+
+
+def _filter_run(kernels: bool, scenario: str) -> tuple[np.ndarray, np.ndarray, Any]:
+    """A filter over one of three streams, with the kernels or with the NumPy twins: a car with
+    a magnetometer (rejections by the hundred), a start under acceleration (re-seeded) and a
+    chip at rest whose still windows teach the bias (the corrections that also take them)."""
+    rng = np.random.default_rng(8)
+    if scenario == "car":
+        s = sc.car(seed=1, mag=True, seconds=30.0)
+        gyro, accel, mag, dt = s.gyro, s.accel, s.mag, s.dt
+        f = ekf.OrientationFilter(ekf.NoiseModel(s.gyro_density, s.accel_density, mag=s.mag_sigma))
+    else:
+        n = 12000
+        gyro = np.radians([0.2, -0.1, 0.3]) + rng.normal(0.0, 0.003, (n, 3))
+        accel = np.array([0.0, 0.0, 9.81]) + rng.normal(0.0, 0.13, (n, 3))
+        if scenario == "reseed":
+            accel[:1500, 0] += 5.0
+        gyro, accel, mag, dt = gyro, accel, None, 0.001
+        f = ekf.OrientationFilter(ekf.NoiseModel(1e-4, 0.004), recovery_s=5.0)
+    saved = (ekf._kernels, kalman._kernels)
+    if not kernels:
+        ekf._kernels = kalman._kernels = None
+    try:
+        qs, cs = [], []
+        for i in range(0, len(gyro), 25):
+            if scenario == "still" and i % 1000 == 0 and i:  # a still window's mean, each second
+                f.zero_rate(gyro[i - 1000 : i].mean(axis=0), np.full(3, 1e-8))
+            m = None if mag is None else mag[i : i + 25]
+            q, c = f.step(gyro[i : i + 25], accel[i : i + 25], dt, m)
+            qs.append(q)
+            cs.append(c)
+    finally:
+        ekf._kernels, kalman._kernels = saved
+    return np.vstack(qs), np.vstack(cs), f
+
+
+@pytest.mark.parametrize("scenario", ["car", "reseed", "still"])
+def test_the_filter_runs_alike_on_its_kernels_and_on_numpy(scenario: str) -> None:
+    """The whole filter (the chunk's kernel, the correction's in one call, the still windows'
+    and the magnetometer's updates through the smaller kernels) against its NumPy twins: the
+    same decisions (every count alike), the same orientations and covariances to rounding."""
+    _kernel("imud._kernels")
+    qf, cf, ff = _filter_run(True, scenario)
+    qs, cs, fs = _filter_run(False, scenario)
+    assert ff.counters == fs.counters
+    if scenario == "reseed":
+        assert ff.counters.recoveries >= 1
+    if scenario == "still":
+        assert ff.counters.zero_rate_updates >= 10
+    if scenario == "car":
+        assert ff.counters.accel_rejected > 50 and ff.counters.mag_updates > 100
+    ok = np.isfinite(qs[:, 0])
+    assert (np.isfinite(qf[:, 0]) == ok).all() and ok.sum() > len(qs) // 2
+    np.testing.assert_allclose(qf[ok], qs[ok], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(cf[ok], cs[ok], rtol=1e-7, atol=1e-18)
+    for name in ("linear_var", "_g0", "_white_var", "_g_var", "_rejected_s", "_drifted_s"):
+        assert getattr(ff, name) == pytest.approx(getattr(fs, name), rel=1e-7, abs=1e-15)
 
 
 def test_orient_kernels_name_a_wrong_size() -> None:

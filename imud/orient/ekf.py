@@ -244,6 +244,15 @@ class OrientationFilter:
         self._drifted_s = 0.0  # rejected in a row with |a| at gravity: the estimate drifted
         self._iv = _Interval()
         self._h = np.empty((2, N_STATES))  # gravity's measurement matrix, made afresh each time
+        # the compiled correction's scalar state and constants (imud/_kernels.c CS_*, CP_*)
+        self._st = np.zeros(19)
+        self._params = np.array(
+            [
+                noise.accel**2, linear_time_s, linear_max**2, recovery_s, STEADY_AFTER,
+                LINEAR_STEADY**2, ADAPT_GAIN, WHITE_GAIN, G0_GAIN, LINEAR_FLOOR**2, DRIFT_SHARE,
+                DRIFT_SIGMAS, DRIFT_S, CHI2_2DOF_999, CHI2_2DOF_95,
+            ]
+        )  # fmt: skip
         # the last interval's half of the next gravity window: its world-frame specific force
         # weighted by a ramp rising to its end, the ramp's weight, its length (s)
         self._rise: tuple[Vec3, float, float] | None = None
@@ -468,6 +477,12 @@ class OrientationFilter:
     # --- correction ------------------------------------------------------------------------
     def _correct(self) -> None:
         iv = self._iv
+        if _kernels is not None and iv.n and not self._pending_zero_rate:
+            self._correct_compiled(iv)
+            if iv.m_n and self.use_mag:
+                self._mag_update(iv)
+            iv.reset()
+            return
         self._propagate(iv)
         for mean, var in self._pending_zero_rate:
             y = (mean - self.b).tolist()
@@ -479,6 +494,42 @@ class OrientationFilter:
         if iv.m_n and self.use_mag:
             self._mag_update(iv)
         iv.reset()
+
+    def _correct_compiled(self, iv: _Interval) -> None:
+        """`_propagate` and `_accel_update` in one kernel call (`imud._kernels.orient_correct`,
+        whose twin they are): the scalar state goes in and comes out as one array."""
+        assert _kernels is not None
+        nan = math.nan
+        g0, prev_y, rise = self._g0, self._prev_y, self._rise
+        (rx, ry, rz), rw, rt = rise if rise is not None else ((0.0, 0.0, 0.0), 0.0, 0.0)
+        st = self._st
+        st[:] = (
+            self.linear_var, nan if g0 is None else g0, self._g0_n, self._adapt_n,
+            *(prev_y if prev_y is not None else (nan, nan)), self._white_var, self._g_var,
+            self._drifted_s, self._rejected_s, rx, ry, rz, rw, rt, 0.0 if rise is None else 1.0,
+            0.0, 0.0, 0.0,
+        )  # fmt: skip
+        code = _kernels.orient_correct(
+            self.P, iv.qq, iv.qqa, iv.kqqa, self._h, self.q, self.b, self.a, self._q_density,
+            self._params, st, float(iv.n), float(iv.steps), iv.t, iv.kn, not self.heading_known,
+        )  # fmt: skip
+        (lv, g0, g0_n, adapt_n, pyx, pyy, white, g_var, drifted, rejected,
+         rx, ry, rz, rw, rt, has_rise, mx, my, mz) = st.tolist()  # fmt: skip
+        self.linear_var, self._white_var, self._g_var = lv, white, g_var
+        self._g0 = None if math.isnan(g0) else g0
+        self._g0_n, self._adapt_n = int(g0_n), int(adapt_n)
+        self._prev_y = None if math.isnan(pyx) else (pyx, pyy)
+        self._drifted_s, self._rejected_s = drifted, rejected
+        self._rise = ((rx, ry, rz), rw, rt) if has_rise else None
+        if code == 0:
+            self.counters.accel_updates += 1
+            self.state = OrientState.RUNNING
+            return
+        self.counters.accel_rejected += 1
+        self.state = OrientState.ACCEL_REJECTED
+        if code == 2:  # never agreeing for this long: the tilt is wrong, not the accelerometer
+            self._seed_tilt(np.array([mx, my, mz]), iv.t)
+            self.counters.recoveries += 1
 
     def _gravity_window(self, iv: _Interval, sums: tuple[float, ...]) -> tuple[Vec3, float]:
         """The world-frame mean specific force under a triangle spanning the last interval and
