@@ -15,6 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from imud.orient import ekf, kalman
 from imud.orient import metrics as M
 from imud.orient.ekf import NoiseModel, OrientationFilter
 from imud.rotations import quat_mul
@@ -353,3 +354,59 @@ def test_the_own_model_drone_draws_its_accelerations_from_the_stated_process() -
     assert r == pytest.approx([math.exp(-1.0)] * 2, abs=0.12)
     # the default keeps the scenario's sinusoidal sway
     assert np.max(np.abs(sc.drone_hover(seed=3, seconds=5.0).linear[:, :2])) <= 0.3 + 1e-12
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["nan", "zero", "huge", "still", "spin", "shaken"]),
+            st.integers(1, 600),
+        ),
+        min_size=1,
+        max_size=10,
+    ),
+    st.integers(1, 64),
+    st.booleans(),
+)
+def test_bad_samples_leave_the_state_sane(
+    segments: list[tuple[str, int]], batch: int, compiled: bool
+) -> None:
+    """Invalid rows (NaN), a chip reading zeros, readings at a full scale's size, spins and
+    shaking, in any order and batch size, through the compiled kernels or their NumPy twins:
+    no exception, a unit orientation wherever one is published, a covariance that stays finite,
+    symmetric and positive."""
+    rng = np.random.default_rng(len(segments) * 1000 + batch)
+    g_parts, a_parts = [np.zeros((1200, 3))], [np.tile([0.0, 0.0, sc.G], (1200, 1))]
+    for kind, k in segments:
+        g = rng.normal(0.0, 0.01, (k, 3))
+        a = np.tile([0.0, 0.0, sc.G], (k, 1)) + rng.normal(0.0, 0.1, (k, 3))
+        if kind == "nan":
+            g[rng.random(k) < 0.5] = np.nan
+            a[rng.random(k) < 0.5] = np.nan
+        elif kind == "zero":
+            g[:], a[:] = 0.0, 0.0
+        elif kind == "huge":
+            g, a = g * 0 + 35.0, a * 0 + 160.0
+        elif kind == "spin":
+            g[:, 2] += 30.0
+        elif kind == "shaken":
+            a += rng.normal(0.0, 40.0, (k, 3))
+        g_parts.append(g)
+        a_parts.append(a)
+    gyro, accel = np.vstack(g_parts), np.vstack(a_parts)
+    saved = (ekf._kernels, kalman._kernels)
+    if not compiled:
+        ekf._kernels = kalman._kernels = None
+    try:
+        f = OrientationFilter(NoiseModel(1e-4, 3e-3), recovery_s=0.5)
+        for i in range(0, len(gyro), batch):
+            qo, co = f.step(gyro[i : i + batch], accel[i : i + batch], 1e-3)
+            started = ~np.isnan(qo[:, 0])
+            assert np.all(np.isfinite(qo[started])) and np.all(np.isfinite(co[started]))
+            assert np.allclose(np.linalg.norm(qo[started], axis=1), 1.0, atol=1e-9)
+    finally:
+        ekf._kernels, kalman._kernels = saved
+    P = f.P
+    assert np.all(np.isfinite(P)) and np.allclose(P, P.T)
+    assert np.linalg.eigvalsh(P).min() > -1e-9 * max(1.0, float(np.abs(P).max()))
