@@ -50,6 +50,21 @@ def quat_mul(a: F64, b: F64) -> F64:
     )
 
 
+def quat_mul_floats(
+    a: tuple[float, ...] | list[float], b: tuple[float, ...] | list[float]
+) -> tuple[float, float, float, float]:
+    """a x b (Hamilton) for one pair of quaternions (w, x, y, z) as plain floats: where a
+    NumPy call on a 4-vector would cost more than the product."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
 def quat_conj(q: F64) -> F64:
     """The inverse rotation of a unit quaternion."""
     out: F64 = q * np.array([1.0, -1.0, -1.0, -1.0])

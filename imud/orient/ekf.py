@@ -44,7 +44,7 @@ import numpy.typing as npt
 from imud.compiled import load
 from imud.orient import kalman
 from imud.orient.kalman import FORM_V, N_STATES, Learn
-from imud.rotations import quat_exp, quat_to_matrix
+from imud.rotations import quat_exp, quat_mul_floats, quat_to_matrix
 
 F64 = npt.NDArray[np.float64]
 _kernels = load("imud._kernels")  # a chunk's integration in one call, when built
@@ -127,18 +127,6 @@ def _ramp(m: int) -> F64:
 
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
-
-
-def _quat_mul(p: Quat | list[float], q: Quat | list[float]) -> Quat:
-    """p x q (Hamilton), in floats."""
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return (
-        pw * qw - px * qx - py * qy - pz * qz,
-        pw * qx + px * qw + py * qz - pz * qy,
-        pw * qy - px * qz + py * qw + pz * qx,
-        pw * qz + px * qy - py * qx + pz * qw,
-    )
 
 
 def _rotate(e: Quat, v: Vec3) -> Vec3:
@@ -702,7 +690,7 @@ class OrientationFilter:
         """Turn the estimate by the world-frame rotation vector (x, y, z). In Python floats: a
         correction's few scalar steps cost less so than as NumPy calls."""
         e = kalman.rotation_quat(x, y, z)
-        w, a, b, c = _quat_mul(e, self.q.tolist())
+        w, a, b, c = quat_mul_floats(e, self.q.tolist())
         n = math.sqrt(w * w + a * a + b * b + c * c)
         self.q = np.array([w / n, a / n, b / n, c / n])
         if self._rise is not None:  # the next window's first half turns with the world

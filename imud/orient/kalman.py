@@ -22,6 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from imud.compiled import load
+from imud.rotations import quat_mul_floats
 
 F64 = npt.NDArray[np.float64]
 _kernels = load("imud._kernels")
@@ -201,14 +202,7 @@ def update(
     b += dx[3:6]
     a += dx[6:8]
     e = rotation_quat(*dx[:3].tolist())
-    w, x, yq, z = q.tolist()
-    ew, ex, ey, ez = e
-    t = (
-        ew * w - ex * x - ey * yq - ez * z,
-        ew * x + ex * w + ey * z - ez * yq,
-        ew * yq - ex * z + ey * w + ez * x,
-        ew * z + ex * yq - ey * x + ez * w,
-    )
+    t = quat_mul_floats(e, q.tolist())
     n = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2] + t[3] * t[3])
     q[:] = (t[0] / n, t[1] / n, t[2] / n, t[3] / n)
     return e

@@ -54,7 +54,7 @@ from imud.chips.bno055.noise import (
 from imud.chips.bno055.registers import Page0 as P0
 from imud.chips.bno055.registers import Page1 as P1
 from imud.clock import Clock
-from imud.rotations import quat_conj, quat_from_axis_angle, quat_from_matrix
+from imud.rotations import quat_conj, quat_from_axis_angle, quat_from_matrix, quat_mul_floats
 from imud.sim.api import SimDie, StreamDie, Truth
 from imud.sim.chip import TRUTH_KEEP, SampledChip
 from imud.sim.filters import NoiseStream, enbw_fir
@@ -136,18 +136,6 @@ def _i16(values: F64) -> bytes:
 def _i16s(values: list[float]) -> bytes:
     """As `_i16`, for a few Python floats (round half to even, as np.rint)."""
     return struct.pack(f"<{len(values)}h", *(min(max(round(v), -32768), 32767) for v in values))
-
-
-def _qmul(a: tuple[float, ...], b: tuple[float, ...]) -> tuple[float, float, float, float]:
-    """The Hamilton product of two quaternions as tuples (w, x, y, z)."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
 
 
 class _Physics:
@@ -439,7 +427,9 @@ class Bno055Sim(SampledChip):
         if not self.fusion:
             p[0x1A:0x34] = bytes(0x34 - 0x1A)
             return
-        w, x, y, z = _qmul(_qmul(c.err, _qmul(c.world, tuple(q_true.tolist()))), c.remap_q)
+        w, x, y, z = quat_mul_floats(
+            quat_mul_floats(c.err, quat_mul_floats(c.world, q_true.tolist())), c.remap_q
+        )
         # gravity in the (remapped) body, the world's (0, 0, G) turned by the inverse of q: the
         # operations of `quat_rotate(quat_conj(q), (0, 0, G))` in its order, so the same bits
         gx = w * (2.0 * -(y * G)) + z * (2.0 * (x * G))
