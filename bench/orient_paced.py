@@ -25,6 +25,11 @@ HERE = Path(__file__).resolve().parent
 STAGE = "imud.orient.stage:OrientationStage.run"
 
 
+def has_kernels(tree: Path) -> bool:
+    """Whether `tree` has its compiled kernels built (else it would run its NumPy twins)."""
+    return any((tree / "imud").glob("_kernels*.so"))
+
+
 def one(tree: Path, config: Path, bus: str, seconds: float) -> float:
     env = dict(os.environ, PYTHONPATH=str(tree.resolve()))
     cmd = [sys.executable, str(HERE / "bus_stages.py"), "--config", str(config), "--bus", bus]
@@ -44,6 +49,10 @@ def main() -> None:
     p.add_argument("--seconds", type=float, default=10.0)
     p.add_argument("--rounds", type=int, default=4)
     a = p.parse_args()
+    for t in a.trees:
+        if not has_kernels(t):
+            print(f"{t}: no compiled kernels built, it runs its NumPy twins (docs/performance.md,")
+            print("  'Compiled kernels': building them in a worktree)")
     runs: dict[Path, list[float]] = {t: [] for t in a.trees}
     for _ in range(a.rounds):
         for t in a.trees:
