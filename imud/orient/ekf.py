@@ -44,7 +44,7 @@ import numpy.typing as npt
 from imud.compiled import load
 from imud.orient import kalman
 from imud.orient.kalman import FORM_V, N_STATES, Learn
-from imud.rotations import quat_exp, quat_mul_floats, quat_to_matrix
+from imud.rotations import quat_exp, quat_to_matrix
 
 F64 = npt.NDArray[np.float64]
 _kernels = load("imud._kernels")  # a chunk's integration in one call, when built
@@ -681,18 +681,18 @@ class OrientationFilter:
         )
         if e is None:
             return False
-        if self._rise is not None:  # the next window's first half turns with the world
-            vec, weight, t = self._rise
-            self._rise = (_rotate(e, vec), weight, t)
+        self._turn_rise(e)
         return True
 
     def _rotate_world(self, x: float, y: float, z: float) -> None:
         """Turn the estimate by the world-frame rotation vector (x, y, z). In Python floats: a
         correction's few scalar steps cost less so than as NumPy calls."""
         e = kalman.rotation_quat(x, y, z)
-        w, a, b, c = quat_mul_floats(e, self.q.tolist())
-        n = math.sqrt(w * w + a * a + b * b + c * c)
-        self.q = np.array([w / n, a / n, b / n, c / n])
-        if self._rise is not None:  # the next window's first half turns with the world
+        self.q = np.array(kalman.turned(e, self.q.tolist()))
+        self._turn_rise(e)
+
+    def _turn_rise(self, e: Quat) -> None:
+        """The next gravity window's first half turns with the world (by e)."""
+        if self._rise is not None:
             vec, weight, t = self._rise
             self._rise = (_rotate(e, vec), weight, t)

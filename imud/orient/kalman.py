@@ -202,10 +202,15 @@ def update(
     b += dx[3:6]
     a += dx[6:8]
     e = rotation_quat(*dx[:3].tolist())
-    t = quat_mul_floats(e, q.tolist())
-    n = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2] + t[3] * t[3])
-    q[:] = (t[0] / n, t[1] / n, t[2] / n, t[3] / n)
+    q[:] = turned(e, q.tolist())
     return e
+
+
+def turned(e: tuple[float, ...], q: list[float]) -> tuple[float, float, float, float]:
+    """e x q, normalised: the orientation q turned by the world-frame rotation e."""
+    w, x, y, z = quat_mul_floats(e, q)
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    return w / n, x / n, y / n, z / n
 
 
 def rotation_quat(x: float, y: float, z: float) -> tuple[float, float, float, float]:
